@@ -1,0 +1,70 @@
+#pragma once
+// Minimal argument parsing for the CLI: positionals, "--key value" options and "--flag"s.
+#include <map>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace refocus {
+
+class Args {
+public:
+    // `flags` are options that take no value.
+    Args(int argc, char** argv, int first, const std::set<std::string>& flags = {}) {
+        for (int i = first; i < argc; ++i) {
+            std::string a = argv[i];
+            if (a.rfind("--", 0) == 0 && a.size() > 2) {
+                std::string key = a.substr(2);
+                auto eq = key.find('=');
+                if (eq != std::string::npos) {
+                    m_opts[key.substr(0, eq)] = key.substr(eq + 1);
+                } else if (flags.count(key)) {
+                    m_opts[key] = "1";
+                } else {
+                    if (i + 1 >= argc) throw std::runtime_error("option --" + key + " needs a value");
+                    m_opts[key] = argv[++i];
+                }
+            } else if (a == "-o") {
+                if (i + 1 >= argc) throw std::runtime_error("option -o needs a value");
+                m_opts["out"] = argv[++i];
+            } else {
+                m_pos.push_back(a);
+            }
+        }
+    }
+    const std::vector<std::string>& positional() const { return m_pos; }
+    bool has(const std::string& k) const { return m_opts.count(k) > 0; }
+    std::string get(const std::string& k, const std::string& def = "") const {
+        auto it = m_opts.find(k);
+        return it == m_opts.end() ? def : it->second;
+    }
+    double get_double(const std::string& k, double def) const {
+        if (!has(k)) return def;
+        try {
+            size_t used = 0;
+            double v = std::stod(get(k), &used);
+            if (used != get(k).size()) throw std::invalid_argument("");
+            return v;
+        } catch (const std::exception&) {
+            throw std::runtime_error("option --" + k + " needs a number (got '" + get(k) + "')");
+        }
+    }
+    int get_int(const std::string& k, int def) const {
+        double v = get_double(k, def);
+        if (v != static_cast<int>(v))
+            throw std::runtime_error("option --" + k + " needs an integer (got '" + get(k) + "')");
+        return static_cast<int>(v);
+    }
+    // Throws on options not in `known` (catches typos such as --frmaes).
+    void check_known(const std::set<std::string>& known) const {
+        for (const auto& [k, v] : m_opts)
+            if (!known.count(k)) throw std::runtime_error("unknown option --" + k);
+    }
+
+private:
+    std::vector<std::string> m_pos;
+    std::map<std::string, std::string> m_opts;
+};
+
+}  // namespace refocus

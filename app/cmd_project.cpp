@@ -1,0 +1,87 @@
+// refocus new / refocus info
+#include <unistd.h>
+
+#include <cstdio>
+
+#include "args.h"
+#include "commands.h"
+#include "io/clip.h"
+#include "project/project.h"
+#include "util/error.h"
+
+namespace refocus {
+
+namespace {
+
+void print_progress(int i, int n) {
+    if (isatty(fileno(stderr))) {
+        std::fprintf(stderr, "\r  ingest %d/%d", i, n);
+        if (i == n) std::fprintf(stderr, "\n");
+    } else if (i == n || i % 50 == 0) {
+        std::fprintf(stderr, "ingest %d/%d\n", i, n);
+    }
+}
+
+ClipReadOptions read_options(const Args& a) {
+    ClipReadOptions o;
+    o.default_fps = a.get_double("fps", 24.0);
+    if (!(o.default_fps > 0)) throw Error("--fps must be positive");
+    std::string nf = a.get("nonfinite", "reject");
+    if (nf == "reject") o.nonfinite = NonFinitePolicy::Reject;
+    else if (nf == "clean") o.nonfinite = NonFinitePolicy::Clean;
+    else throw Error("--nonfinite must be 'reject' or 'clean' (got '" + nf + "')");
+    return o;
+}
+
+}  // namespace
+
+int cmd_new(int argc, char** argv) {
+    Args a(argc, argv, 2);
+    a.check_known({"out", "fps", "nonfinite"});
+    if (a.positional().size() != 1 || !a.has("out"))
+        throw Error("usage: refocus new <clip> -o <project-dir>");
+    const std::string clip = a.positional()[0];
+    Project p = create_project(clip, a.get("out"), read_options(a), print_progress);
+    std::printf("created project %s: %dx%d, %d frames at %.3f fps from %s\n",
+                p.project_file().string().c_str(), p.width, p.height, p.frames, p.fps,
+                clip.c_str());
+    return 0;
+}
+
+int cmd_info(int argc, char** argv) {
+    Args a(argc, argv, 2);
+    a.check_known({"fps", "nonfinite"});
+    if (a.positional().size() != 1) throw Error("usage: refocus info <clip-or-project>");
+    const std::string path = a.positional()[0];
+    if (is_project_path(path)) {
+        Project p = Project::load(path);
+        std::printf("project:  %s\n", p.project_file().string().c_str());
+        std::printf("name:     %s\n", p.name.c_str());
+        std::printf("version:  %d\n", p.version);
+        std::printf("source:   %s (%s, %s)\n", p.source.c_str(), p.source_kind.c_str(),
+                    p.source_format.c_str());
+        std::printf("size:     %dx%d\n", p.width, p.height);
+        std::printf("frames:   %d\n", p.frames);
+        std::printf("fps:      %.3f\n", p.fps);
+        std::printf("cache:    %s\n", (p.dir / p.frame_pattern).string().c_str());
+        if (p.sections.empty()) {
+            std::printf("holds:    frames only (not fitted yet)\n");
+        } else {
+            for (auto it = p.sections.begin(); it != p.sections.end(); ++it)
+                std::printf("holds:    %s\n", it.key().c_str());
+        }
+        return 0;
+    }
+    auto reader = ClipReader::open(path, read_options(a));
+    const ClipInfo& i = reader->info();
+    std::printf("clip:     %s\n", i.path.c_str());
+    std::printf("kind:     %s\n", i.kind.c_str());
+    std::printf("size:     %dx%d\n", i.width, i.height);
+    std::printf("frames:   %d\n", i.frames);
+    std::printf("fps:      %.3f%s\n", i.fps, i.kind == "sequence" ? " (sequence: --fps sets it)" : "");
+    std::printf("source:   %d channel(s), %s, %s\n", i.source_channels, i.source_format.c_str(),
+                i.source_linear ? "linear" : "sRGB-encoded");
+    return 0;
+}
+
+}  // namespace refocus

@@ -1,0 +1,7 @@
+#pragma once
+// One function per subcommand; each returns the process exit code and throws refocus::Error
+// (or std::runtime_error) with a one-line message on failure.
+namespace refocus {
+int cmd_new(int argc, char** argv);
+int cmd_info(int argc, char** argv);
+}  // namespace refocus

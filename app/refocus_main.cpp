@@ -1,0 +1,60 @@
+// refocus: the command-line front end. Thin: parse arguments, call the engine.
+#include <cstdio>
+#include <cstring>
+#include <exception>
+#include <string>
+
+#include "commands.h"
+#include "util/threads.h"
+
+namespace {
+
+struct Command {
+    const char* name;
+    int (*run)(int, char**);
+    const char* usage;
+    const char* help;
+};
+
+const Command kCommands[] = {
+    {"new", refocus::cmd_new, "new <clip> -o <project-dir> [--fps F] [--nonfinite reject|clean]",
+     "ingest a video or image sequence into a new project"},
+    {"info", refocus::cmd_info, "info <clip-or-project>",
+     "print size, frames, fps and what a project holds"},
+};
+
+void print_help() {
+    std::printf(
+        "refocus - fix misfocused video: fit sharp layered atlases, refocus, export\n\n"
+        "usage: refocus <command> [options]\n\ncommands:\n");
+    for (const auto& c : kCommands) std::printf("  %-8s %s\n           %s\n", c.name, c.help, c.usage);
+    std::printf(
+        "\nClips are video files (mp4, mov, mkv, avi) or image sequences: a folder, or a\n"
+        "printf pattern such as shot/frame_%%04d.exr (PNG, JPEG, TIFF, OpenEXR).\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h") ||
+        !std::strcmp(argv[1], "help")) {
+        print_help();
+        return argc < 2 ? 2 : 0;
+    }
+    if (!std::strcmp(argv[1], "--version")) {
+        std::printf("refocus 0.1.0\n");
+        return 0;
+    }
+    for (const auto& c : kCommands) {
+        if (std::strcmp(argv[1], c.name) != 0) continue;
+        try {
+            refocus::init_threads();
+            return c.run(argc, argv);
+        } catch (const std::exception& e) {
+            std::fprintf(stderr, "refocus %s: error: %s\n", c.name, e.what());
+            return 1;
+        }
+    }
+    std::fprintf(stderr, "refocus: unknown command '%s' (see refocus --help)\n", argv[1]);
+    return 2;
+}

@@ -1,0 +1,53 @@
+// refocus-studio: the desktop application.
+#include <cstdio>
+#include <cstring>
+#include <exception>
+#include <string>
+
+#include "studio.h"
+#include "util/threads.h"
+
+int main(int argc, char** argv) {
+    refocus::StudioOptions o;
+    for (int i = 1; i < argc; ++i) {
+        std::string a = argv[i];
+        auto next = [&]() -> std::string {
+            if (i + 1 >= argc) {
+                std::fprintf(stderr, "refocus-studio: %s needs a value\n", a.c_str());
+                std::exit(2);
+            }
+            return argv[++i];
+        };
+        if (a == "--help" || a == "-h") {
+            std::printf(
+                "usage: refocus-studio [project-or-clip] [--frame N] [--size WxH]\n"
+                "                      [--screenshot out.png --exit-after FRAMES]\n");
+            return 0;
+        } else if (a == "--screenshot") {
+            o.screenshot = next();
+        } else if (a == "--exit-after") {
+            o.exit_after = std::atoi(next().c_str());
+        } else if (a == "--frame") {
+            o.start_frame = std::atoi(next().c_str());
+        } else if (a == "--size") {
+            std::string s = next();
+            if (std::sscanf(s.c_str(), "%dx%d", &o.width, &o.height) != 2) {
+                std::fprintf(stderr, "refocus-studio: --size needs WxH\n");
+                return 2;
+            }
+        } else if (!a.empty() && a[0] == '-') {
+            std::fprintf(stderr, "refocus-studio: unknown option %s\n", a.c_str());
+            return 2;
+        } else {
+            o.open_path = a;
+        }
+    }
+    if (!o.screenshot.empty() && o.exit_after < 0) o.exit_after = 3;
+    try {
+        refocus::init_threads();
+        return refocus::run_studio(o);
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "refocus-studio: error: %s\n", e.what());
+        return 1;
+    }
+}

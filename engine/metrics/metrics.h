@@ -1,0 +1,45 @@
+#pragma once
+// Image and video quality metrics.
+//
+// Colour space: like the paper's tables, every metric is computed on sRGB-encoded 8-bit values
+// (linear frames are encoded with the sRGB curve, clamped to [0,1] and rounded to 1/255), on the
+// R, G and B channels, with peak 255. SSIM is the mean over the three channels of Wang et al.'s
+// SSIM (11x11 Gaussian window, sigma 1.5, K1 = 0.01, K2 = 0.03, "valid" region only, as in
+// scikit-image's gaussian_weights=True). MS-SSIM is Wang, Simoncelli and Bovik's 5-scale
+// product with exponents (0.0448, 0.2856, 0.3001, 0.2363, 0.1333) and 2x2 average
+// downsampling; when the image is too small for 5 scales (the window must fit at the coarsest),
+// fewer scales are used and their exponents renormalised to sum to 1. tPSNR is the PSNR of
+// consecutive-frame differences: MSE over all (pred[t+1]-pred[t]) - (gt[t+1]-gt[t]) values,
+// peak 255.
+#include <vector>
+
+#include "io/image.h"
+
+namespace refocus {
+
+enum class MetricSpace { Srgb8, Linear };
+
+// Encodes linear RGB to the metric space (sRGB 8-bit levels as floats in [0,255]).
+Image to_metric_space(const Image& linear, MetricSpace space = MetricSpace::Srgb8);
+
+// Raw metrics on images already in the metric space, with the given peak.
+double mse(const Image& a, const Image& b);
+double psnr_from_mse(double mse, double peak);
+double ssim_raw(const Image& a, const Image& b, double peak);
+double ms_ssim_raw(const Image& a, const Image& b, double peak, int* scales_used = nullptr);
+
+// Linear-light inputs, evaluated in `space` (default sRGB 8-bit, peak 255).
+double psnr(const Image& pred, const Image& gt, MetricSpace space = MetricSpace::Srgb8);
+double ssim(const Image& pred, const Image& gt, MetricSpace space = MetricSpace::Srgb8);
+double ms_ssim(const Image& pred, const Image& gt, MetricSpace space = MetricSpace::Srgb8);
+double tpsnr(const std::vector<Image>& pred, const std::vector<Image>& gt,
+             MetricSpace space = MetricSpace::Srgb8);
+
+// Mean PSNR / SSIM over a clip (per-frame values averaged; PSNR of identical frames is
+// capped at 100 dB so that averages stay finite).
+double mean_psnr(const std::vector<Image>& pred, const std::vector<Image>& gt,
+                 MetricSpace space = MetricSpace::Srgb8);
+double mean_ssim(const std::vector<Image>& pred, const std::vector<Image>& gt,
+                 MetricSpace space = MetricSpace::Srgb8);
+
+}  // namespace refocus

@@ -1,0 +1,181 @@
+#include "project/project.h"
+
+#include <cmath>
+
+#include "io/image_file.h"
+#include "util/error.h"
+
+namespace refocus {
+
+using nlohmann::json;
+
+namespace {
+
+[[noreturn]] void field_error(const std::string& label, const std::string& field,
+                              const std::string& problem) {
+    throw Error(file_error(label, "field '" + field + "' " + problem));
+}
+
+const json& require(const json& j, const std::string& label, const std::string& key,
+                    json::value_t type, const std::string& path) {
+    if (!j.contains(key)) field_error(label, path, "is missing");
+    const json& v = j.at(key);
+    bool ok = v.type() == type ||
+              (type == json::value_t::number_float && v.is_number()) ||
+              (type == json::value_t::number_integer && v.is_number_integer());
+    if (!ok) field_error(label, path, std::string("must be ") +
+                                          (type == json::value_t::string ? "a string"
+                                           : type == json::value_t::object ? "an object"
+                                           : type == json::value_t::number_integer
+                                               ? "an integer"
+                                               : "a number") +
+                                          " (got " + v.dump() + ")");
+    return v;
+}
+
+int positive_int(const json& j, const std::string& label, const std::string& key,
+                 const std::string& path, int max) {
+    const json& v = require(j, label, key, json::value_t::number_integer, path);
+    long long x = v.get<long long>();
+    if (x <= 0 || x > max)
+        field_error(label, path, "must be in 1.." + std::to_string(max) + " (got " + v.dump() + ")");
+    return static_cast<int>(x);
+}
+
+}  // namespace
+
+fs::path Project::frame_path(int index) const { return dir / format_pattern(frame_pattern, index); }
+
+Image Project::read_frame(int index) const {
+    if (index < 0 || index >= frames)
+        throw Error(file_error(project_file().string(), "frame " + std::to_string(index) +
+                                                            " out of range 0.." +
+                                                            std::to_string(frames - 1)));
+    ImageReadResult r = read_image_file(frame_path(index).string(), false,
+                                        NonFinitePolicy::Reject, index);
+    if (r.image.width != width || r.image.height != height)
+        throw Error(file_error(frame_path(index).string(),
+                               "cached frame size differs from the project's " +
+                                   std::to_string(width) + "x" + std::to_string(height),
+                               index));
+    return to_rgb(r.image);
+}
+
+json Project::to_json() const {
+    json j;
+    j["version"] = version;
+    j["name"] = name;
+    j["source"] = {{"path", source}, {"kind", source_kind}, {"format", source_format}};
+    j["clip"] = {{"width", width}, {"height", height}, {"frames", frames}, {"fps", fps}};
+    j["cache"] = {{"frames", frame_pattern}};
+    for (auto it = sections.begin(); it != sections.end(); ++it) j[it.key()] = it.value();
+    return j;
+}
+
+Project Project::from_json(const json& j, const fs::path& dir, const std::string& label) {
+    if (!j.is_object()) throw Error(file_error(label, "not a JSON object"));
+    Project p;
+    p.dir = dir;
+    p.version = static_cast<int>(
+        require(j, label, "version", json::value_t::number_integer, "version").get<long long>());
+    if (p.version > kVersion)
+        throw Error(file_error(label, "written by a newer Refocus (project version " +
+                                          std::to_string(p.version) + ", this build reads up to " +
+                                          std::to_string(kVersion) + "); update Refocus to open it"));
+    if (p.version < 1) field_error(label, "version", "must be >= 1 (got " + std::to_string(p.version) + ")");
+    p.name = require(j, label, "name", json::value_t::string, "name").get<std::string>();
+    const json& src = require(j, label, "source", json::value_t::object, "source");
+    p.source = require(src, label, "path", json::value_t::string, "source.path").get<std::string>();
+    p.source_kind = require(src, label, "kind", json::value_t::string, "source.kind").get<std::string>();
+    if (p.source_kind != "video" && p.source_kind != "sequence")
+        field_error(label, "source.kind", "must be \"video\" or \"sequence\" (got \"" + p.source_kind + "\")");
+    p.source_format = src.value("format", "uint8");
+    const json& clip = require(j, label, "clip", json::value_t::object, "clip");
+    p.width = positive_int(clip, label, "width", "clip.width", 1 << 15);
+    p.height = positive_int(clip, label, "height", "clip.height", 1 << 15);
+    p.frames = positive_int(clip, label, "frames", "clip.frames", 1 << 20);
+    p.fps = require(clip, label, "fps", json::value_t::number_float, "clip.fps").get<double>();
+    if (!(p.fps > 0.0 && p.fps <= 1000.0))
+        field_error(label, "clip.fps", "must be in (0, 1000] (got " + clip.at("fps").dump() + ")");
+    const json& cache = require(j, label, "cache", json::value_t::object, "cache");
+    p.frame_pattern = require(cache, label, "frames", json::value_t::string, "cache.frames").get<std::string>();
+    if (fs::path(p.frame_pattern).is_absolute() || p.frame_pattern.find("..") != std::string::npos)
+        field_error(label, "cache.frames", "must be a path inside the project folder (got \"" + p.frame_pattern + "\")");
+    if (p.frame_pattern.find('%') == std::string::npos)
+        field_error(label, "cache.frames", "must be a pattern with %d (got \"" + p.frame_pattern + "\")");
+    for (auto it = j.begin(); it != j.end(); ++it) {
+        static const char* known[] = {"version", "name", "source", "clip", "cache"};
+        if (std::find(std::begin(known), std::end(known), it.key()) == std::end(known))
+            p.sections[it.key()] = it.value();
+    }
+    return p;
+}
+
+Project Project::load(const fs::path& dir_or_file) {
+    fs::path file = dir_or_file;
+    if (fs::is_directory(file)) file /= kFileName;
+    if (!fs::exists(file)) throw Error(file_error(file.string(), "no such project file"));
+    std::string text = read_text_file(file);
+    json j;
+    try {
+        j = json::parse(text);
+    } catch (const json::parse_error& e) {
+        throw Error(file_error(file.string(), std::string("not valid JSON: ") + e.what()));
+    }
+    Project p = from_json(j, file.parent_path(), file.string());
+    for (int i : {0, p.frames - 1})
+        if (!fs::exists(p.frame_path(i)))
+            throw Error(file_error(p.frame_path(i).string(),
+                                   "frame cache file is missing (re-create the project with "
+                                   "'refocus new')",
+                                   i));
+    return p;
+}
+
+void Project::save() const { write_file_atomic(project_file(), to_json().dump(2) + "\n"); }
+
+bool is_project_path(const std::string& path) {
+    fs::path p(path);
+    if (fs::is_directory(p)) return fs::exists(p / Project::kFileName);
+    return p.filename() == Project::kFileName;
+}
+
+Project create_project(const std::string& clip, const fs::path& dir, const ClipReadOptions& opts,
+                       void (*progress)(int, int)) {
+    if (fs::exists(dir / Project::kFileName))
+        throw Error(file_error((dir / Project::kFileName).string(),
+                               "a project already exists here; choose another folder"));
+    auto reader = ClipReader::open(clip, opts);
+    const ClipInfo& info = reader->info();
+    std::error_code ec;
+    fs::create_directories(dir / "frames", ec);
+    if (ec) throw Error(file_error(dir.string(), "cannot create project folder: " + ec.message()));
+
+    Project p;
+    p.dir = dir;
+    p.name = fs::path(clip).stem().string();
+    if (p.name.empty() || p.name.find('%') != std::string::npos) p.name = dir.filename().string();
+    // Store the source relative to the project when that is possible.
+    fs::path abs_clip = fs::absolute(clip).lexically_normal();
+    fs::path rel = abs_clip.lexically_relative(fs::absolute(dir).lexically_normal());
+    p.source = rel.empty() ? abs_clip.string() : rel.string();
+    p.source_kind = info.kind;
+    p.source_format = info.source_format;
+    p.width = info.width;
+    p.height = info.height;
+    p.frames = info.frames;
+    p.fps = info.fps;
+    p.frame_pattern = "frames/frame_%04d.exr";
+    // Float sources keep float precision; 8/16-bit sources fit in half exactly enough.
+    const PixelFormat cache_format =
+        info.source_format == "float" ? PixelFormat::ExrFloat : PixelFormat::ExrHalf;
+    for (int i = 0; i < info.frames; ++i) {
+        Image f = reader->read(i);
+        write_image_file(p.frame_path(i).string(), f, cache_format, false);
+        if (progress) progress(i + 1, info.frames);
+    }
+    p.save();
+    return p;
+}
+
+}  // namespace refocus

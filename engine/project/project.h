@@ -1,0 +1,51 @@
+#pragma once
+// project.json: what a Refocus project holds. Paths inside are relative to the project folder
+// (the source clip may be absolute when it lies outside). Sections owned by later stages (fit,
+// focus, edits) are kept as JSON and written back untouched by code that does not know them.
+#include <nlohmann/json.hpp>
+
+#include <string>
+
+#include "io/clip.h"
+#include "util/fs.h"
+
+namespace refocus {
+
+struct Project {
+    static constexpr int kVersion = 1;
+    static constexpr const char* kFileName = "project.json";
+
+    fs::path dir;                  // the project folder (not stored)
+    int version = kVersion;
+    std::string name;
+    std::string source;            // the clip it was made from, as stored
+    std::string source_kind;       // "video" or "sequence"
+    int width = 0, height = 0, frames = 0;
+    double fps = 24.0;
+    std::string frame_pattern;     // relative: "frames/frame_%04d.exr"
+    std::string source_format;     // "uint8", "uint16", "half", "float"
+    nlohmann::json sections = nlohmann::json::object();  // later stages' data
+
+    fs::path project_file() const { return dir / kFileName; }
+    fs::path frame_path(int index) const;
+    // Cached frame as linear RGB.
+    Image read_frame(int index) const;
+
+    nlohmann::json to_json() const;
+    // Validates every field; throws refocus::Error naming the file and the field.
+    static Project from_json(const nlohmann::json& j, const fs::path& dir,
+                             const std::string& label);
+    static Project load(const fs::path& dir_or_file);
+    // Atomic write of project.json (the previous file stays intact on failure).
+    void save() const;
+};
+
+// Is `path` a project folder (or its project.json)?
+bool is_project_path(const std::string& path);
+
+// Ingests `clip` into a new project at `dir` (created; must be empty or absent): the frames
+// become a linear EXR cache that later stages read quickly. `progress(i, n)` is called per frame.
+Project create_project(const std::string& clip, const fs::path& dir, const ClipReadOptions& opts,
+                       void (*progress)(int, int) = nullptr);
+
+}  // namespace refocus

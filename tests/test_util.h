@@ -1,0 +1,33 @@
+#pragma once
+// Shared helpers for the test suites: scratch folders, running the CLI, small test images.
+#include <string>
+#include <vector>
+
+#include "io/image.h"
+#include "util/fs.h"
+
+namespace refocus::test {
+
+// A fresh empty folder under the build tree, named after the test.
+fs::path scratch_dir(const std::string& name);
+
+struct RunResult {
+    int code = -1;
+    std::string output;  // stdout and stderr together
+};
+// Runs a shell command line and captures its output.
+RunResult run(const std::string& command);
+// Runs the refocus CLI with the given argument string.
+RunResult cli(const std::string& args);
+
+// A deterministic textured RGB test frame (linear light): gradients, a checkerboard, a moving
+// disc at (`t` * 3, ...) so that consecutive frames differ.
+Image pattern_frame(int w, int h, int t, unsigned seed = 1);
+
+// Writes `frames` as sRGB PNGs `<dir>/frame_%04d.png` (8 or 16 bit).
+void write_png_sequence(const fs::path& dir, const std::vector<Image>& frames, bool sixteen = false);
+
+// Max absolute difference.
+double max_abs_diff(const Image& a, const Image& b);
+
+}  // namespace refocus::test

@@ -1,0 +1,17 @@
+#pragma once
+#include <string>
+
+namespace refocus {
+
+struct StudioOptions {
+    std::string open_path;    // project or clip to open at start (may be empty)
+    std::string screenshot;   // write a PNG of the window after `exit_after` frames
+    int exit_after = -1;      // close after this many rendered UI frames (-1: run until closed)
+    int start_frame = 0;
+    int width = 1280, height = 800;
+};
+
+// Runs the Refocus Studio window; returns the exit code.
+int run_studio(const StudioOptions& opts);
+
+}  // namespace refocus
