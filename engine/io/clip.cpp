@@ -311,7 +311,7 @@ void ClipWriter::open_encoder(int w, int h) {
     std::snprintf(cmd, sizeof cmd,
                   "ffmpeg -nostdin -hide_banner -loglevel error -y -f rawvideo -pix_fmt rgb24 "
                   "-s %dx%d -r %.6f -i - -an -c:v libx264 -preset medium -crf %d "
-                  "-vf scale=out_color_matrix=bt601:out_range=tv -pix_fmt %s "
+                  "-vf scale=out_color_matrix=bt601:out_range=tv:flags=accurate_rnd+full_chroma_int -pix_fmt %s "
                   "-colorspace smpte170m -color_primaries bt709 -color_trc iec61966-2-1 "
                   "-movflags +faststart -f mp4 '%s' 2>&1",
                   w, h, m_opts.fps, m_opts.crf, even ? "yuv420p" : "yuv444p", m_tmp.c_str());

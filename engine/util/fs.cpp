@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <cstring>
@@ -16,6 +17,8 @@ namespace refocus {
 
 namespace {
 std::string errno_text() { return std::strerror(errno); }
+
+long g_fault_after = -1;
 
 void fsync_dir(const fs::path& dir) {
     int fd = ::open(dir.empty() ? "." : dir.c_str(), O_RDONLY | O_DIRECTORY);
@@ -44,13 +47,17 @@ void commit_temp(const fs::path& tmp, const fs::path& path) {
     fsync_dir(path.parent_path());
 }
 
+void simulate_disk_full_after(long bytes) { g_fault_after = bytes; }
+
 void write_file_atomic(const fs::path& path, const std::string& bytes) {
     fs::path tmp = temp_sibling(path);
     int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     if (fd < 0) throw Error(file_error(path.string(), "cannot write: " + errno_text()));
     size_t done = 0;
     while (done < bytes.size()) {
-        ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+        size_t chunk = bytes.size() - done;
+        if (g_fault_after >= 0) chunk = std::min(chunk, size_t(std::max(0L, g_fault_after - long(done))));
+        ssize_t n = chunk > 0 ? ::write(fd, bytes.data() + done, chunk) : (errno = ENOSPC, -1);
         if (n < 0) {
             if (errno == EINTR) continue;
             std::string why = errno_text();

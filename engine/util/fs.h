@@ -18,6 +18,10 @@ fs::path temp_sibling(const fs::path& path);
 // Renames `tmp` over `path` and fsyncs the folder; throws refocus::Error on failure.
 void commit_temp(const fs::path& tmp, const fs::path& path);
 
+// Test hook: makes the next atomic writes fail with ENOSPC after `bytes` bytes, as a full disk
+// would (-1 disarms). Used by the tests to prove a failed save keeps the previous file.
+void simulate_disk_full_after(long bytes);
+
 std::string read_text_file(const fs::path& path);
 
 // printf-style pattern ("frame_%04d.png") with one integer.

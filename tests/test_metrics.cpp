@@ -1,0 +1,92 @@
+// Metrics against values worked out by hand.
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <random>
+
+#include "metrics/metrics.h"
+#include "util/error.h"
+
+using namespace refocus;
+
+namespace {
+// A linear image whose sRGB 8-bit encoding is exactly `code` everywhere.
+Image code_image(int w, int h, int code) {
+    return Image(w, h, 3, srgb8_to_linear_table()[code]);
+}
+}  // namespace
+
+TEST_CASE("PSNR by hand") {
+    // One value of 48 off by the full range: MSE = 255²/48, PSNR = 10·log10(48) = 16.8124 dB.
+    Image a(4, 4, 3, 0.0f), b = a;
+    b.pixels[7] = 1.0f;
+    CHECK(psnr(a, b) == doctest::Approx(10 * std::log10(48.0)).epsilon(1e-9));
+    // Every value off by 5 code levels: PSNR = 20·log10(255/5) = 34.1514 dB.
+    CHECK(psnr(code_image(8, 8, 100), code_image(8, 8, 105)) ==
+          doctest::Approx(20 * std::log10(255.0 / 5)).epsilon(1e-9));
+    // Identical images: capped at 100 dB.
+    CHECK(psnr(a, a) == 100.0);
+    // Shape mismatch is an error, not a number.
+    CHECK_THROWS_AS(psnr(a, Image(4, 5, 3)), Error);
+}
+
+TEST_CASE("SSIM and MS-SSIM identities") {
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    Image x(200, 180, 3);
+    for (float& v : x.pixels) v = u(rng);
+    CHECK(ssim(x, x) == doctest::Approx(1.0).epsilon(1e-12));
+    int scales = 0;
+    CHECK(ms_ssim_raw(to_metric_space(x), to_metric_space(x), 255, &scales) ==
+          doctest::Approx(1.0).epsilon(1e-12));
+    CHECK(scales == 5);
+    // Too small for 5 scales: 64 px → 3 scales (64, 32, 16 ≥ 11).
+    Image small(64, 64, 3, 0.2f);
+    ms_ssim_raw(to_metric_space(small), to_metric_space(small), 255, &scales);
+    CHECK(scales == 3);
+}
+
+TEST_CASE("SSIM of flat images: only the luminance term, by hand") {
+    // μa = 100, μb = 110, no variance: SSIM = (2·100·110 + C1) / (100² + 110² + C1),
+    // C1 = (0.01·255)² = 6.5025 → 0.995476.
+    Image a(32, 32, 3, 100.0f), b(32, 32, 3, 110.0f);
+    const double c1 = 6.5025;
+    const double expect = (2 * 100 * 110 + c1) / (100 * 100 + 110 * 110 + c1);
+    CHECK(ssim_raw(a, b, 255) == doctest::Approx(expect).epsilon(1e-9));
+    // MS-SSIM: every contrast-structure term is 1 (no variance), the coarsest scale keeps the
+    // luminance term with exponent 0.1333 / Σw (Σw = 1.0001).
+    Image a2(192, 192, 3, 100.0f), b2(192, 192, 3, 110.0f);
+    CHECK(ms_ssim_raw(a2, b2, 255) == doctest::Approx(std::pow(expect, 0.1333 / 1.0001)).epsilon(1e-9));
+}
+
+TEST_CASE("SSIM of a noisy copy follows the reference formula") {
+    // x uniform in [0,255] (σx² = 255²/12), y = x + n with independent Gaussian noise σn.
+    // Means agree (l ≈ 1), so SSIM ≈ (2σx² + C2) / (2σx² + σn² + C2), C2 = (0.03·255)².
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<float> u(0.0f, 255.0f);
+    std::normal_distribution<float> n(0.0f, 20.0f);
+    Image x(256, 256, 1), y(256, 256, 1);
+    for (size_t i = 0; i < x.size(); ++i) {
+        x.pixels[i] = u(rng);
+        y.pixels[i] = x.pixels[i] + n(rng);
+    }
+    const double sx2 = 255.0 * 255.0 / 12, sn2 = 400.0, c2 = std::pow(0.03 * 255, 2);
+    const double expect = (2 * sx2 + c2) / (2 * sx2 + sn2 + c2);
+    CHECK(ssim_raw(x, y, 255) == doctest::Approx(expect).epsilon(0.01));
+}
+
+TEST_CASE("tPSNR by hand") {
+    std::vector<Image> gt, same_offset, flicker;
+    for (int t = 0; t < 4; ++t) {
+        gt.push_back(code_image(16, 16, 100 + 10 * t));
+        same_offset.push_back(code_image(16, 16, 103 + 10 * t));              // constant bias
+        flicker.push_back(code_image(16, 16, 100 + 10 * t + (t % 2 ? 3 : -3)));  // ±3 alternation
+    }
+    // A constant bias does not flicker: consecutive differences match exactly.
+    CHECK(tpsnr(same_offset, gt) == 100.0);
+    // ±3 alternation: every difference is off by 6 → tPSNR = 20·log10(255/6) = 32.568 dB.
+    CHECK(tpsnr(flicker, gt) == doctest::Approx(20 * std::log10(255.0 / 6)).epsilon(1e-9));
+    // ... while its per-frame PSNR is 20·log10(255/3).
+    CHECK(mean_psnr(flicker, gt) == doctest::Approx(20 * std::log10(255.0 / 3)).epsilon(1e-9));
+    CHECK_THROWS_AS(tpsnr({gt[0]}, {gt[0]}), Error);
+}
