@@ -1,0 +1,178 @@
+#include "prepare/motion.h"
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+#include "prepare/detail.h"
+#include "util/error.h"
+
+namespace refocus {
+
+using namespace prep_detail;
+
+void Homography::apply(double x, double y, double& ox, double& oy) const {
+    const double w = m[6] * x + m[7] * y + m[8];
+    ox = (m[0] * x + m[1] * y + m[2]) / w;
+    oy = (m[3] * x + m[4] * y + m[5]) / w;
+}
+
+namespace {
+cv::Matx33d to_matx(const Homography& h) { return cv::Matx33d(h.m.data()); }
+Homography from_matx(const cv::Matx33d& a) {
+    Homography h;
+    const double s = std::abs(a(2, 2)) > 1e-15 ? 1.0 / a(2, 2) : 1.0;
+    for (int i = 0; i < 9; ++i) h.m[i] = a.val[i] * s;
+    return h;
+}
+}  // namespace
+
+Homography Homography::operator*(const Homography& o) const {
+    return from_matx(to_matx(*this) * to_matx(o));
+}
+
+Homography Homography::inverse() const {
+    const cv::Matx33d a = to_matx(*this);
+    if (std::abs(cv::determinant(a)) < 1e-12) throw Error("homography is singular");
+    return from_matx(a.inv());
+}
+
+double max_corner_displacement(const Homography& h, int width, int height) {
+    const double cx[4] = {0, double(width - 1), 0, double(width - 1)};
+    const double cy[4] = {0, 0, double(height - 1), double(height - 1)};
+    double worst = 0;
+    for (int i = 0; i < 4; ++i) {
+        double x, y;
+        h.apply(cx[i], cy[i], x, y);
+        const double d = std::hypot(x - cx[i], y - cy[i]);
+        worst = std::isfinite(d) ? std::max(worst, d) : 1e9;
+    }
+    return worst;
+}
+
+Image homography_flow(const Homography& h, int width, int height) {
+    Image f(width, height, 2);
+    for (int y = 0; y < height; ++y)
+        for (int x = 0; x < width; ++x) {
+            double ox, oy;
+            h.apply(x, y, ox, oy);
+            f.at(x, y, 0) = float(ox - x);
+            f.at(x, y, 1) = float(oy - y);
+        }
+    return f;
+}
+
+namespace {
+
+// A plausible frame-to-frame camera motion: orientation kept, no wild perspective or scale.
+bool plausible(const cv::Mat& H, int w, int h) {
+    if (H.empty()) return false;
+    cv::Matx33d a(H);
+    if (cv::determinant(a) <= 0) return false;
+    Homography hh = from_matx(a);
+    return max_corner_displacement(hh, w, h) < 0.5 * std::max(w, h);
+}
+
+// Homography from frame t+1 to frame t from tracked corners; returns inlier count (0 = failed).
+int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions& o,
+                       cv::Mat& H) {
+    std::vector<cv::Point2f> p0;
+    cv::goodFeaturesToTrack(g0, p0, o.max_features, o.feature_quality, o.feature_min_distance);
+    if (int(p0.size()) < o.min_inliers) return 0;
+    std::vector<cv::Point2f> p1, back;
+    std::vector<unsigned char> st1, st2;
+    std::vector<float> err;
+    const cv::Size win(15, 15);
+    const auto crit = cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 0.01);
+    cv::calcOpticalFlowPyrLK(g0, g1, p0, p1, st1, err, win, 3, crit);
+    cv::calcOpticalFlowPyrLK(g1, g0, p1, back, st2, err, win, 3, crit);
+    std::vector<cv::Point2f> src, dst;  // src in t+1, dst in t
+    for (size_t i = 0; i < p0.size(); ++i) {
+        if (!st1[i] || !st2[i]) continue;
+        if (cv::norm(back[i] - p0[i]) > o.track_fb_max_px) continue;
+        if (p1[i].x < 0 || p1[i].y < 0 || p1[i].x > g1.cols - 1 || p1[i].y > g1.rows - 1) continue;
+        src.push_back(p1[i]);
+        dst.push_back(p0[i]);
+    }
+    if (int(src.size()) < o.min_inliers) return 0;
+    std::vector<unsigned char> inl;
+    H = cv::findHomography(src, dst, cv::RANSAC, o.ransac_px, inl, 4000, 0.999);
+    const int n = int(std::count(inl.begin(), inl.end(), 1));
+    if (n < o.min_inliers || !plausible(H, g0.cols, g0.rows)) return 0;
+    return n;
+}
+
+// Same from the consistent backward flow (t+1 → t) sampled on a grid.
+int pair_from_flow(const Image& bwd, const Image& bwd_valid, const MotionOptions& o, cv::Mat& H) {
+    std::vector<cv::Point2f> src, dst;
+    const int step = std::max(2, std::min(bwd.width, bwd.height) / 40);
+    for (int y = step / 2; y < bwd.height; y += step)
+        for (int x = step / 2; x < bwd.width; x += step) {
+            if (bwd_valid.at(x, y, 0) < 0.5f) continue;
+            src.emplace_back(float(x), float(y));
+            dst.emplace_back(x + bwd.at(x, y, 0), y + bwd.at(x, y, 1));
+        }
+    if (int(src.size()) < o.min_inliers) return 0;
+    std::vector<unsigned char> inl;
+    H = cv::findHomography(src, dst, cv::RANSAC, o.ransac_px, inl, 4000, 0.999);
+    const int n = int(std::count(inl.begin(), inl.end(), 1));
+    if (n < o.min_inliers || !plausible(H, bwd.width, bwd.height)) return 0;
+    return n;
+}
+
+}  // namespace
+
+CameraMotion estimate_camera_motion(const std::vector<Image>& frames, const ClipFlow* flow,
+                                    const MotionOptions& opts, PrepareLog& log) {
+    CameraMotion cm;
+    const int n = int(frames.size());
+    if (n == 0) return cm;
+    if (opts.reference < 0 || opts.reference >= n)
+        throw Error("camera motion: reference frame " + std::to_string(opts.reference) +
+                    " out of range 0.." + std::to_string(n - 1));
+    cm.reference = opts.reference;
+    const int w = frames[0].width, h = frames[0].height;
+    std::vector<cv::Mat> grey;
+    for (const auto& f : frames) grey.push_back(srgb_grey8(f));
+
+    std::vector<Homography> to0(n);  // frame t → frame 0
+    for (int t = 0; t + 1 < n; ++t) {
+        cv::Mat H;
+        int inliers = pair_from_features(grey[t], grey[t + 1], opts, H);
+        std::string source = "features";
+        if (inliers == 0 && flow && size_t(t) < flow->bwd.size()) {
+            inliers = pair_from_flow(flow->bwd[t], flow->bwd_valid[t], opts, H);
+            source = "flow";
+            log.info("frames " + std::to_string(t) + "-" + std::to_string(t + 1) +
+                     ": too few tracked features for a homography; " +
+                     (inliers ? "fitted it to the dense flow (" + std::to_string(inliers) +
+                                    " inliers)"
+                              : std::string("flow fit failed too")));
+        }
+        Homography pair;
+        if (inliers == 0) {
+            source = "identity";
+            log.info("frames " + std::to_string(t) + "-" + std::to_string(t + 1) +
+                     ": no camera motion estimate; assuming none (identity)");
+        } else {
+            pair = from_matx(cv::Matx33d(H));
+        }
+        cm.pair.push_back(pair);
+        cm.pair_source.push_back(source);
+        cm.pair_inliers.push_back(inliers);
+        to0[t + 1] = to0[t] * pair;  // (t+1 → t) then (t → 0)
+    }
+    const Homography ref_inv = to0[opts.reference].inverse();
+    for (int t = 0; t < n; ++t) {
+        cm.to_reference.push_back(ref_inv * to0[t]);
+        cm.max_displacement_px =
+            std::max(cm.max_displacement_px, max_corner_displacement(cm.to_reference[t], w, h));
+    }
+    cm.is_static = cm.max_displacement_px < opts.static_max_px;
+    return cm;
+}
+
+}  // namespace refocus
