@@ -4,4 +4,5 @@
 namespace refocus {
 int cmd_new(int argc, char** argv);
 int cmd_info(int argc, char** argv);
+int cmd_synth(int argc, char** argv);
 }  // namespace refocus
