@@ -54,8 +54,9 @@ class KernelEval {
 public:
     explicit KernelEval(const LensBlurParams& p) : m_p(p) {
         m_tail = disk_tail(p.beta);
-        // Paper eq. 2 rewritten as 1/(1 − d·e^{−βd}): never overflows for d ≥ −t_e.
-        m_disk_edge = 1.0 / (1.0 + m_tail * std::exp(p.beta * m_tail));
+        // k(−t_e) = E/(E + t_e), E = e^{−β t_e} (underflows harmlessly to 0 for large β).
+        const double E = std::exp(-p.beta * m_tail);
+        m_disk_edge = E / (E + m_tail);
         m_gauss_edge = std::exp(-0.5 * kGaussianTail * kGaussianTail);
     }
     void set_radius(double r) {
@@ -76,10 +77,22 @@ public:
                     k = dk = 0;
                     return;
                 }
-                double e = std::exp(-m_p.beta * d);  // ≤ e^{β t_e}: bounded
-                double kk = 1.0 / (1.0 - d * e);     // > 0 because β > 1/e
+                // Paper eq. 2 in the form that cannot overflow on either side: for d ≥ 0,
+                // k = 1/(1 − d·e^{−βd}); for d < 0, k = E/(E − d) with E = e^{βd} ≤ 1. The
+                // denominator is > 0 because β > 1/e. ∂k/∂d = E(1 − βd)/(E − d)², ∂d/∂r = 1.
+                double kk, dkk;
+                if (d >= 0) {
+                    double e = std::exp(-m_p.beta * d);
+                    kk = 1.0 / (1.0 - d * e);
+                    dkk = kk * kk * e * (1.0 - m_p.beta * d);
+                } else {
+                    double E = std::exp(m_p.beta * d);
+                    double den = 1.0 / (E - d);
+                    kk = E * den;
+                    dkk = E * (1.0 - m_p.beta * d) * den * den;
+                }
                 k = kk - m_disk_edge;
-                dk = kk * kk * e * (1.0 - m_p.beta * d);  // ∂k/∂d, and ∂d/∂r = 1
+                dk = dkk;
                 return;
             }
             case BlurKernel::Pillbox: {

@@ -129,7 +129,8 @@ torch::Tensor lens_blur_tensor_ops(const torch::Tensor& image, const torch::Tens
     torch::Tensor xs = torch::arange(W, torch::kLong).view({1, 1, W});
     torch::Tensor dxl = torch::arange(-R, R + 1, torch::kLong).view({K1, 1, 1});
     const double te = std::max(kDiskTail / params.beta, kDiskTailMin);
-    const double disk_edge = 1.0 / (1.0 + te * std::exp(params.beta * te));
+    const double disk_edge = std::exp(-params.beta * te) / (std::exp(-params.beta * te) + te);
+    const auto k_dtype = image.scalar_type();
     const double gauss_edge = std::exp(-0.5 * kGaussianTail * kGaussianTail);
 
     // k̃ for one kernel row dy, masked to in-image taps: [K1,H,W].
@@ -138,9 +139,16 @@ torch::Tensor lens_blur_tensor_ops(const torch::Tensor& image, const torch::Tens
         torch::Tensor k;
         switch (params.kernel) {
             case BlurKernel::Disk: {
+                // Both branches finite everywhere: 1/(1 − d·e^{−βd}) on d ≥ 0 and
+                // e^{βd}/(e^{βd} − d) on −t_e ≤ d < 0; the support mask is strict (ρ < R_s),
+                // as in the fast path, so a tap exactly at the edge has zero derivative.
                 torch::Tensor d = rr - rho;
-                torch::Tensor dc = d.clamp_min(-te);  // keeps e^{−βd} finite outside the support
-                k = 1.0 / (1.0 - dc * torch::exp(-params.beta * dc)) - disk_edge;
+                torch::Tensor dp = d.clamp_min(0);
+                torch::Tensor dn = d.clamp(-te, 0);
+                torch::Tensor en = torch::exp(params.beta * dn);
+                torch::Tensor kp = 1.0 / (1.0 - dp * torch::exp(-params.beta * dp));
+                torch::Tensor kn = en / (en - dn);
+                k = (torch::where(d >= 0, kp, kn) - disk_edge) * (d > -te).to(k_dtype);
                 break;
             }
             case BlurKernel::Pillbox: k = (rr + 0.5 - rho).clamp(0, 1); break;
