@@ -131,23 +131,31 @@ private:
 
 // One pixel's kernel on its own support: rows |y| ≤ R, each row stored over x ∈ [−R, R] so that
 // the tap loops index it directly. Filled from one octant (the kernel depends on ρ only), so
-// a table of N taps costs about N/8 kernel evaluations.
-template <typename T>
+// a table of N taps costs about N/8 kernel evaluations. With Rep = 3 each entry is repeated
+// three times (k3[3(x+R)+c]) so that the RGB tap loops run over contiguous memory with no
+// stride-3 pattern, which the compiler vectorises. A table is reused while consecutive pixels
+// share the same radius (constant regions of a COC map).
+template <typename T, int Rep>
 struct KernelTable {
     int R = -1;
-    int stride = 0;
+    int stride = 0;  // (2R+1)·Rep
+    double r = -1;
+    bool has_dk = false;
     std::vector<int> span;  // span[|y|]: taps at |x| ≤ span, −1 for an empty row
     std::vector<T> k, dk;
     double sum = 0, dsum = 0;  // over the whole (unclipped) support
 
-    const T* row(int ay) const { return k.data() + static_cast<size_t>(ay) * stride + R; }
-    const T* drow(int ay) const { return dk.data() + static_cast<size_t>(ay) * stride + R; }
+    const T* row(int ay) const { return k.data() + static_cast<size_t>(ay) * stride + R * Rep; }
+    const T* drow(int ay) const { return dk.data() + static_cast<size_t>(ay) * stride + R * Rep; }
 
-    void build(const KernelEval& ev, int max_extent, bool with_dk) {
+    void build(const KernelEval& ev, double radius, int max_extent, bool with_dk) {
+        if (radius == r && (has_dk || !with_dk)) return;
+        r = radius;
+        has_dk = with_dk;
         double rs = ev.support();
         double rs2 = rs * rs;
         R = std::min(static_cast<int>(std::floor(rs)), max_extent);
-        stride = 2 * R + 1;
+        stride = (2 * R + 1) * Rep;
         span.assign(R + 1, -1);
         size_t n = static_cast<size_t>(R + 1) * stride;
         if (k.size() < n) k.resize(n);
@@ -175,12 +183,14 @@ struct KernelTable {
 
 private:
     inline void set(int ay, int ax, double kv, double dkv, bool with_dk) {
-        size_t base = static_cast<size_t>(ay) * stride + R;
-        k[base + ax] = static_cast<T>(kv);
-        k[base - ax] = static_cast<T>(kv);
-        if (with_dk) {
-            dk[base + ax] = static_cast<T>(dkv);
-            dk[base - ax] = static_cast<T>(dkv);
+        size_t base = static_cast<size_t>(ay) * stride + R * Rep;
+        for (int c = 0; c < Rep; ++c) {
+            k[base + ax * Rep + c] = static_cast<T>(kv);
+            k[base - ax * Rep + c] = static_cast<T>(kv);
+            if (with_dk) {
+                dk[base + ax * Rep + c] = static_cast<T>(dkv);
+                dk[base - ax * Rep + c] = static_cast<T>(dkv);
+            }
         }
     }
 };
@@ -233,8 +243,9 @@ void forward_hwc(const T* img, const T* rad, T* out, int C, int H, int W,
             buf = extra[tid - 1].data();
         }
         KernelEval ev(params);
-        KernelTable<T> tab;
-        std::vector<T> v(nc);
+        constexpr int kRep = CC == 3 ? 3 : 1;
+        KernelTable<T, kRep> tab;
+        std::vector<T> v(nc), v3;
 #pragma omp for schedule(dynamic, 1)
         for (size_t ti = 0; ti < tiles.size(); ++ti) {
             const Tile& t = tiles[ti];
@@ -251,7 +262,7 @@ void forward_hwc(const T* img, const T* rad, T* out, int C, int H, int W,
                     double s, ds;
                     blend(r, params.min_radius, s, ds);
                     ev.set_radius(r);
-                    tab.build(ev, max_extent, false);
+                    tab.build(ev, r, max_extent, false);
                     const int R = tab.R;
                     const int ya = std::max(-R, -py), yb = std::min(R, H - 1 - py);
                     const bool clipped = py - R < 0 || py + R >= H || px - R < 0 || px + R >= W;
@@ -262,11 +273,15 @@ void forward_hwc(const T* img, const T* rad, T* out, int C, int H, int W,
                             const int X = tab.span[std::abs(y)];
                             const int xa = std::max(-X, -px), xb = std::min(X, W - 1 - px);
                             const T* kr = tab.row(std::abs(y));
-                            for (int x = xa; x <= xb; ++x) S += kr[x];
+                            for (int x = xa; x <= xb; ++x) S += kr[x * kRep];
                         }
                     }
                     const double a = s / S;
                     for (int c = 0; c < nc; ++c) v[c] = static_cast<T>(ip[c] * a);
+                    if constexpr (CC == 3) {  // the colour repeated along a row: v0 v1 v2 v0 …
+                        v3.resize(3 * (2 * R + 1));
+                        for (size_t j = 0; j < v3.size(); ++j) v3[j] = v[j % 3];
+                    }
                     for (int y = ya; y <= yb; ++y) {
                         const int X = tab.span[std::abs(y)];
                         if (X < 0) continue;
@@ -274,13 +289,12 @@ void forward_hwc(const T* img, const T* rad, T* out, int C, int H, int W,
                         const T* kr = tab.row(std::abs(y));
                         T* orow = buf + (static_cast<size_t>(py + y) * W + px) * nc;
                         if constexpr (CC == 3) {
-                            const T v0 = v[0], v1 = v[1], v2 = v[2];
-                            for (int x = xa; x <= xb; ++x) {
-                                const T w = kr[x];
-                                orow[3 * x] += w * v0;
-                                orow[3 * x + 1] += w * v1;
-                                orow[3 * x + 2] += w * v2;
-                            }
+                            T* __restrict o = orow + 3 * xa;
+                            const T* __restrict w = kr + 3 * xa;
+                            const T* __restrict vv = v3.data();
+                            const int n = 3 * (xb - xa + 1);
+#pragma omp simd
+                            for (int j = 0; j < n; ++j) o[j] += w[j] * vv[j];
                         } else {
                             for (int x = xa; x <= xb; ++x) {
                                 const T w = kr[x];
@@ -314,7 +328,8 @@ void backward_hwc(const T* gout, const T* img, const T* rad, T* gimg, T* grad, i
 #pragma omp parallel num_threads(nt)
     {
         KernelEval ev(params);
-        KernelTable<T> tab;
+        constexpr int kRep = CC == 3 ? 3 : 1;
+        KernelTable<T, kRep> tab;
         std::vector<T> acc(nc), bcc(nc);
 #pragma omp for schedule(dynamic, 1)
         for (size_t ti = 0; ti < tiles.size(); ++ti) {
@@ -333,7 +348,7 @@ void backward_hwc(const T* gout, const T* img, const T* rad, T* gimg, T* grad, i
                     double s, ds;
                     blend(r, params.min_radius, s, ds);
                     ev.set_radius(r);
-                    tab.build(ev, max_extent, want_r);
+                    tab.build(ev, r, max_extent, want_r);
                     const int R = tab.R;
                     const int ya = std::max(-R, -py), yb = std::min(R, H - 1 - py);
                     T S = 0, Sd = 0;
@@ -345,61 +360,68 @@ void backward_hwc(const T* gout, const T* img, const T* rad, T* gimg, T* grad, i
                         const int xa = std::max(-X, -px), xb = std::min(X, W - 1 - px);
                         const T* kr = tab.row(std::abs(y));
                         const T* grow = gout + (static_cast<size_t>(py + y) * W + px) * nc;
-                        if (!want_r) {
-                            if constexpr (CC == 3) {
-                                T a0 = 0, a1 = 0, a2 = 0, ss = 0;
-                                for (int x = xa; x <= xb; ++x) {
-                                    const T w = kr[x];
-                                    ss += w;
-                                    a0 += w * grow[3 * x];
-                                    a1 += w * grow[3 * x + 1];
-                                    a2 += w * grow[3 * x + 2];
+                        if constexpr (CC == 3) {
+                            // Contiguous over the row's 3·n floats; 12 lanes (a multiple of 3
+                            // and of the SIMD width), lane u holds channel u % 3.
+                            const T* __restrict w = kr + 3 * xa;
+                            const T* __restrict gg = grow + 3 * xa;
+                            const int n = 3 * (xb - xa + 1);
+                            T a12[12] = {}, b12[12] = {}, s12[12] = {}, d12[12] = {};
+                            int j = 0;
+                            if (!want_r) {
+                                for (; j + 12 <= n; j += 12)
+                                    for (int u = 0; u < 12; ++u) {
+                                        s12[u] += w[j + u];
+                                        a12[u] += w[j + u] * gg[j + u];
+                                    }
+                                for (; j < n; j += 3) {  // whole taps left over
+                                    S += w[j];
+                                    acc[0] += w[j] * gg[j];
+                                    acc[1] += w[j] * gg[j + 1];
+                                    acc[2] += w[j] * gg[j + 2];
                                 }
-                                S += ss;
-                                acc[0] += a0;
-                                acc[1] += a1;
-                                acc[2] += a2;
                             } else {
-                                for (int x = xa; x <= xb; ++x) {
-                                    const T w = kr[x];
-                                    S += w;
-                                    for (int c = 0; c < nc; ++c) acc[c] += w * grow[x * nc + c];
+                                const T* __restrict dw = tab.drow(std::abs(y)) + 3 * xa;
+                                for (; j + 12 <= n; j += 12)
+                                    for (int u = 0; u < 12; ++u) {
+                                        s12[u] += w[j + u];
+                                        d12[u] += dw[j + u];
+                                        a12[u] += w[j + u] * gg[j + u];
+                                        b12[u] += dw[j + u] * gg[j + u];
+                                    }
+                                for (; j < n; j += 3) {  // whole taps left over
+                                    S += w[j];
+                                    Sd += dw[j];
+                                    for (int c = 0; c < 3; ++c) {
+                                        acc[c] += w[j] * gg[j + c];
+                                        bcc[c] += dw[j] * gg[j + c];
+                                    }
                                 }
+                            }
+                            T s_all = 0, d_all = 0;
+                            for (int u = 0; u < 12; ++u) {
+                                acc[u % 3] += a12[u];
+                                bcc[u % 3] += b12[u];
+                                s_all += s12[u];
+                                d_all += d12[u];
+                            }
+                            S += s_all / 3;  // each tap was counted once per channel
+                            Sd += d_all / 3;
+                        } else if (!want_r) {
+                            for (int x = xa; x <= xb; ++x) {
+                                const T w = kr[x];
+                                S += w;
+                                for (int c = 0; c < nc; ++c) acc[c] += w * grow[x * nc + c];
                             }
                         } else {
                             const T* dr = tab.drow(std::abs(y));
-                            if constexpr (CC == 3) {
-                                T a0 = 0, a1 = 0, a2 = 0, b0 = 0, b1 = 0, b2 = 0, ss = 0, sd = 0;
-                                for (int x = xa; x <= xb; ++x) {
-                                    const T w = kr[x], dw = dr[x];
-                                    const T g0 = grow[3 * x], g1 = grow[3 * x + 1],
-                                            g2 = grow[3 * x + 2];
-                                    ss += w;
-                                    sd += dw;
-                                    a0 += w * g0;
-                                    a1 += w * g1;
-                                    a2 += w * g2;
-                                    b0 += dw * g0;
-                                    b1 += dw * g1;
-                                    b2 += dw * g2;
-                                }
-                                S += ss;
-                                Sd += sd;
-                                acc[0] += a0;
-                                acc[1] += a1;
-                                acc[2] += a2;
-                                bcc[0] += b0;
-                                bcc[1] += b1;
-                                bcc[2] += b2;
-                            } else {
-                                for (int x = xa; x <= xb; ++x) {
-                                    const T w = kr[x], dw = dr[x];
-                                    S += w;
-                                    Sd += dw;
-                                    for (int c = 0; c < nc; ++c) {
-                                        acc[c] += w * grow[x * nc + c];
-                                        bcc[c] += dw * grow[x * nc + c];
-                                    }
+                            for (int x = xa; x <= xb; ++x) {
+                                const T w = kr[x], dw = dr[x];
+                                S += w;
+                                Sd += dw;
+                                for (int c = 0; c < nc; ++c) {
+                                    acc[c] += w * grow[x * nc + c];
+                                    bcc[c] += dw * grow[x * nc + c];
                                 }
                             }
                         }
