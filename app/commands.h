@@ -4,5 +4,6 @@
 namespace refocus {
 int cmd_new(int argc, char** argv);
 int cmd_info(int argc, char** argv);
+int cmd_bench(int argc, char** argv);  // refocus bench <what> (app/cmd_bench.cpp)
 int cmd_synth(int argc, char** argv);
 }  // namespace refocus

@@ -21,6 +21,8 @@ const Command kCommands[] = {
      "ingest a video or image sequence into a new project"},
     {"info", refocus::cmd_info, "info <clip-or-project>",
      "print size, frames, fps and what a project holds"},
+    {"bench", refocus::cmd_bench, "bench blur [--size WxH] [--kernel disk|pillbox|gaussian]",
+     "print benchmark figures (bench with no name lists them)"},
     {"synth", refocus::cmd_synth,
      "synth --scene rack|walkout|pan|hunt|list -o <dir> [--size WxH] [--frames N] [--seed S]",
      "render a misfocused test clip with exact ground truth (sharp, COC, alpha, flow)"},
