@@ -1,11 +1,11 @@
 #include "prepare/coc.h"
 
-#include <opencv2/imgproc.hpp>
-
 #include <algorithm>
 #include <cmath>
 #include <map>
 #include <mutex>
+#include <opencv2/imgproc.hpp>
+#include <tuple>
 
 #include "prepare/detail.h"
 #include "util/error.h"
@@ -16,7 +16,9 @@ using namespace prep_detail;
 
 namespace {
 
-int reblur_ksize(double sigma0) { return 2 * int(std::ceil(4.0 * sigma0)) + 1; }
+int reblur_ksize(double sigma0) {
+    return 2 * int(std::ceil(4.0 * sigma0)) + 1;
+}
 
 // Edge step response (the integral of the line-spread function) at offset u from the edge.
 double step_response(double u, double r, CocPsf psf) {
@@ -35,23 +37,32 @@ double step_response(double u, double r, CocPsf psf) {
 // The estimator's σ on an ideal pixel-integrated edge of radius r: averaged over sub-pixel
 // positions of the edge. Derivative = central difference (Sobel's along-gradient profile),
 // reblur = the same discrete Gaussian kernel estimate_coc uses.
-double simulate_sigma(double r, CocPsf psf, double sigma0) {
-    const int n = 2 * int(std::ceil(r + 6 * sigma0 + 8)) + 1;
-    const cv::Mat k = cv::getGaussianKernel(reblur_ksize(sigma0), sigma0, CV_64F);
-    const int kh = k.rows / 2;
+void convolve1d(std::vector<double>& s, double sigma) {
+    if (sigma <= 0) return;
+    const cv::Mat k = cv::getGaussianKernel(reblur_ksize(sigma), sigma, CV_64F);
+    const int kh = k.rows / 2, n = int(s.size());
+    std::vector<double> o(n, 0.0);
+    for (int i = 0; i < n; ++i)
+        for (int j = -kh; j <= kh; ++j)
+            o[i] += k.at<double>(j + kh) * s[std::clamp(i + j, 0, n - 1)];
+    s.swap(o);
+}
+
+double simulate_sigma(double r, CocPsf psf, double sigma0, double presmooth) {
+    const int n = 2 * int(std::ceil(r + 6 * sigma0 + 6 * presmooth + 8)) + 1;
     double acc = 0;
     int count = 0;
     for (int oi = 0; oi < 8; ++oi) {
         const double c = n / 2 + oi / 8.0;
-        std::vector<double> s(n), s1(n, 0.0);
+        std::vector<double> s(n), s1;
         for (int i = 0; i < n; ++i) {
             double v = 0;  // integrate over the pixel's extent (8 sub-samples)
             for (int j = 0; j < 8; ++j) v += step_response(i - 0.5 + (j + 0.5) / 8.0 - c, r, psf);
             s[i] = v / 8.0;
         }
-        for (int i = 0; i < n; ++i)
-            for (int j = -kh; j <= kh; ++j)
-                s1[i] += k.at<double>(j + kh) * s[std::clamp(i + j, 0, n - 1)];
+        convolve1d(s, presmooth);
+        s1 = s;
+        convolve1d(s1, sigma0);
         int best = 1;
         double gbest = -1;
         for (int i = 1; i + 1 < n; ++i) {
@@ -73,17 +84,18 @@ struct Table {
     std::vector<double> sigma;  // sigma[i] = measured σ for r = i·step, made non-decreasing
 };
 
-const Table& calibration(CocPsf psf, double sigma0) {
+const Table& calibration(CocPsf psf, double sigma0, double presmooth) {
     static std::mutex mu;
-    static std::map<std::pair<int, long>, Table> cache;
+    static std::map<std::tuple<int, long, long>, Table> cache;
     std::lock_guard<std::mutex> lock(mu);
-    const auto key = std::make_pair(int(psf), std::lround(sigma0 * 1e6));
+    const auto key =
+        std::make_tuple(int(psf), std::lround(sigma0 * 1e6), std::lround(presmooth * 1e6));
     auto it = cache.find(key);
     if (it != cache.end()) return it->second;
     Table t;
     const double rtop = 48.0;
     for (double r = 0; r <= rtop + 1e-9; r += t.step) {
-        double s = simulate_sigma(r, psf, sigma0);
+        double s = simulate_sigma(r, psf, sigma0, presmooth);
         if (!t.sigma.empty()) s = std::max(s, t.sigma.back());
         t.sigma.push_back(s);
     }
@@ -92,10 +104,12 @@ const Table& calibration(CocPsf psf, double sigma0) {
 
 }  // namespace
 
-double sigma_of_coc(double r, CocPsf psf, double sigma0) { return simulate_sigma(r, psf, sigma0); }
+double sigma_of_coc(double r, CocPsf psf, double sigma0, double presmooth) {
+    return simulate_sigma(r, psf, sigma0, presmooth);
+}
 
-double coc_from_sigma(double sigma_est, CocPsf psf, double sigma0) {
-    const Table& t = calibration(psf, sigma0);
+double coc_from_sigma(double sigma_est, CocPsf psf, double sigma0, double presmooth) {
+    const Table& t = calibration(psf, sigma0, presmooth);
     if (!(sigma_est > t.sigma.front())) return 0.0;
     if (sigma_est >= t.sigma.back()) return (t.sigma.size() - 1) * t.step;
     const size_t i = std::upper_bound(t.sigma.begin(), t.sigma.end(), sigma_est) - t.sigma.begin();
@@ -108,7 +122,11 @@ Image estimate_coc_at_edges(const Image& frame, const CocOptions& o, Image& weig
     if (frame.empty()) throw Error("estimate_coc: empty frame");
     if (!(o.sigma0 > 0)) throw Error("estimate_coc: sigma0 must be > 0");
     const int w = frame.width, h = frame.height;
-    const cv::Mat L = linear_grey(frame);
+    cv::Mat L = linear_grey(frame);
+    if (o.presmooth > 0) {
+        const int kp = reblur_ksize(o.presmooth);
+        cv::GaussianBlur(L, L, cv::Size(kp, kp), o.presmooth, o.presmooth, cv::BORDER_REPLICATE);
+    }
     cv::Mat gx, gy, L1, gx1, gy1;
     // Sobel/8: central difference across the edge, [1 2 1]/4 smoothing along it.
     cv::Sobel(L, gx, CV_32F, 1, 0, 3, 1.0 / 8.0, 0, cv::BORDER_REPLICATE);
@@ -144,19 +162,20 @@ Image estimate_coc_at_edges(const Image& frame, const CocOptions& o, Image& weig
             const double g = mag.at<float>(y, x), g1 = mag1.at<float>(y, x);
             if (g1 <= 0) continue;
             const double R = g / g1;
-            double r;
-            if (R <= 1.0 + 1e-6)
-                r = o.rmax;  // no measurable change: blurrier than the estimator resolves
-            else
-                r = coc_from_sigma(o.sigma0 / std::sqrt(R * R - 1.0), o.psf, o.sigma0);
+            // R ≤ 1 cannot come from a lone blurred edge (reblurring never steepens it): it is
+            // a corner, a thin line or a neighbour's interference. Such samples are dropped, not
+            // read as "infinitely blurred" (that made sharp frames read 16 px at 1% of edges).
+            if (R <= 1.0 + 1e-6) continue;
+            const double r =
+                coc_from_sigma(o.sigma0 / std::sqrt(R * R - 1.0), o.psf, o.sigma0, o.presmooth);
             sparse.at(x, y, 0) = float(std::min(r, o.rmax));
             weight.at(x, y, 0) = 1.0f;
         }
     return sparse;
 }
 
-Image weighted_guided_filter(const Image& guide, const Image& src, const Image& weight,
-                             int radius, double eps, Image* coverage) {
+Image weighted_guided_filter(const Image& guide, const Image& src, const Image& weight, int radius,
+                             double eps, Image* coverage) {
     if (guide.channels != 1 || src.channels != 1 || weight.channels != 1 ||
         !guide.same_shape(src) || !guide.same_shape(weight))
         throw Error("weighted_guided_filter: need 1-channel images of one size");

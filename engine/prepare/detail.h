@@ -12,8 +12,7 @@ inline cv::Mat as_mat(Image& img) {
     return cv::Mat(img.height, img.width, CV_32FC(img.channels), img.data());
 }
 inline cv::Mat as_mat(const Image& img) {
-    return cv::Mat(img.height, img.width, CV_32FC(img.channels),
-                   const_cast<float*>(img.data()));
+    return cv::Mat(img.height, img.width, CV_32FC(img.channels), const_cast<float*>(img.data()));
 }
 // A deep copy of a float Mat into an Image.
 Image to_image(const cv::Mat& m);

@@ -8,7 +8,7 @@
 namespace refocus {
 
 class PrepareLog {
-public:
+  public:
     using Sink = std::function<void(const std::string&)>;
     PrepareLog() = default;
     explicit PrepareLog(Sink sink) : m_sink(std::move(sink)) {}
@@ -18,7 +18,7 @@ public:
     }
     const std::vector<std::string>& lines() const { return m_lines; }
 
-private:
+  private:
     Sink m_sink;
     std::vector<std::string> m_lines;
 };

@@ -1,10 +1,9 @@
 #include "prepare/masks.h"
 
-#include <opencv2/imgproc.hpp>
-
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 
 #include "io/image_file.h"
 #include "prepare/detail.h"
@@ -39,15 +38,16 @@ std::vector<Image> flow_residuals(const ClipFlow& flow, const CameraMotion& moti
         }
         for (int y = 0; y < height; ++y)
             for (int x = 0; x < width; ++x) {
-                float best_valid = INFINITY, best_any = INFINITY;
+                float best_valid = INFINITY;
                 for (const Dir& d : dirs) {
                     const float du = d.flow->at(x, y, 0) - d.predicted.at(x, y, 0);
                     const float dv = d.flow->at(x, y, 1) - d.predicted.at(x, y, 1);
                     const float r = std::sqrt(du * du + dv * dv);
-                    best_any = std::min(best_any, r);
                     if (d.valid->at(x, y, 0) > 0.5f) best_valid = std::min(best_valid, r);
                 }
-                score.at(x, y, 0) = std::isfinite(best_valid) ? best_valid : best_any;
+                // Inconsistent both ways: occluded or unmatched, no evidence of own motion.
+                // (Subject interiors lost this way come back through closing + hole filling.)
+                score.at(x, y, 0) = std::isfinite(best_valid) ? best_valid : 0.0f;
             }
         out.push_back(std::move(score));
     }
@@ -80,7 +80,8 @@ std::vector<Image> auto_masks(const std::vector<Image>& residuals, const MaskOpt
         const float thr = std::max(float(o.min_residual_px), med + float(o.k_mad) * mad);
         cv::Mat bin(h, w, CV_8UC1);
         for (int y = 0; y < h; ++y)
-            for (int x = 0; x < w; ++x) bin.at<unsigned char>(y, x) = res.at(x, y, 0) > thr ? 255 : 0;
+            for (int x = 0; x < w; ++x)
+                bin.at<unsigned char>(y, x) = res.at(x, y, 0) > thr ? 255 : 0;
         if (o.close_px > 0) cv::morphologyEx(bin, bin, cv::MORPH_CLOSE, disk_element(o.close_px));
         if (o.fill_holes) {
             // Holes are background regions not connected to the frame border: flood the
@@ -112,8 +113,7 @@ namespace {
 bool is_image_file(const fs::path& p) {
     std::string e = p.extension().string();
     std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return std::tolower(c); });
-    return e == ".png" || e == ".jpg" || e == ".jpeg" || e == ".tif" || e == ".tiff" ||
-           e == ".exr";
+    return e == ".png" || e == ".jpg" || e == ".jpeg" || e == ".tif" || e == ".tiff" || e == ".exr";
 }
 
 long trailing_number(const fs::path& p) {
@@ -144,8 +144,8 @@ std::vector<std::string> sequence_files(const std::string& path, int frames,
             const std::string f = format_pattern(path, start + i);
             if (!fs::exists(f))
                 throw Error(file_error(f, what + " for frame " + std::to_string(i) +
-                                              " is missing (the clip has " + n +
-                                              " frames: one " + what + " each)"));
+                                              " is missing (the clip has " + n + " frames: one " +
+                                              what + " each)"));
             files.push_back(f);
         }
         const std::string extra = format_pattern(path, start + frames);

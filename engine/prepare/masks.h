@@ -10,10 +10,10 @@
 // predicts. Defocus barely moves features, so that residual is the subject's own motion. Per
 // frame it takes the smaller residual of the forward (t → t+1) and backward (t → t−1) flows among
 // the directions that pass the consistency test (occluded background is inconsistent in one
-// direction only), thresholds it robustly (median + k·1.4826·MAD, floored at min_residual_px),
-// closes, fills holes, opens and keeps components of significant area.
-// Limit: a subject moving less than min_residual_px per frame relative to the background is not
-// separated (it is, for the fit, part of the rigid background).
+// direction only; pixels inconsistent both ways count as background), thresholds it robustly
+// (median + k·1.4826·MAD, floored at min_residual_px), closes, fills holes, opens and keeps
+// components of significant area. Limit: a subject moving less than min_residual_px per frame
+// relative to the background is not separated (it is, for the fit, part of the rigid background).
 #include <string>
 #include <vector>
 

@@ -1,11 +1,10 @@
 #include "prepare/motion.h"
 
+#include <algorithm>
+#include <cmath>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
-
-#include <algorithm>
-#include <cmath>
 
 #include "prepare/detail.h"
 #include "util/error.h"
@@ -21,7 +20,9 @@ void Homography::apply(double x, double y, double& ox, double& oy) const {
 }
 
 namespace {
-cv::Matx33d to_matx(const Homography& h) { return cv::Matx33d(h.m.data()); }
+cv::Matx33d to_matx(const Homography& h) {
+    return cv::Matx33d(h.m.data());
+}
 Homography from_matx(const cv::Matx33d& a) {
     Homography h;
     const double s = std::abs(a(2, 2)) > 1e-15 ? 1.0 / a(2, 2) : 1.0;
@@ -77,8 +78,7 @@ bool plausible(const cv::Mat& H, int w, int h) {
 }
 
 // Homography from frame t+1 to frame t from tracked corners; returns inlier count (0 = failed).
-int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions& o,
-                       cv::Mat& H) {
+int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions& o, cv::Mat& H) {
     std::vector<cv::Point2f> p0;
     cv::goodFeaturesToTrack(g0, p0, o.max_features, o.feature_quality, o.feature_min_distance);
     if (int(p0.size()) < o.min_inliers) return 0;
@@ -148,9 +148,9 @@ CameraMotion estimate_camera_motion(const std::vector<Image>& frames, const Clip
             source = "flow";
             log.info("frames " + std::to_string(t) + "-" + std::to_string(t + 1) +
                      ": too few tracked features for a homography; " +
-                     (inliers ? "fitted it to the dense flow (" + std::to_string(inliers) +
-                                    " inliers)"
-                              : std::string("flow fit failed too")));
+                     (inliers
+                          ? "fitted it to the dense flow (" + std::to_string(inliers) + " inliers)"
+                          : std::string("flow fit failed too")));
         }
         Homography pair;
         if (inliers == 0) {

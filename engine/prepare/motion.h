@@ -28,14 +28,14 @@ struct Homography {
 double max_corner_displacement(const Homography& h, int width, int height);
 
 struct MotionOptions {
-    int reference = 0;            // frame the homographies map to
-    int max_features = 600;       // Shi-Tomasi corners per frame
+    int reference = 0;       // frame the homographies map to
+    int max_features = 600;  // Shi-Tomasi corners per frame
     double feature_quality = 0.005;
     double feature_min_distance = 4.0;
     double track_fb_max_px = 0.5;  // LK forward-backward disagreement allowed
-    double ransac_px = 1.0;       // RANSAC reprojection threshold
-    int min_inliers = 12;         // fewer → fall back to the flow, then to identity
-    double static_max_px = 0.5;   // camera is static if no corner moves more than this
+    double ransac_px = 1.0;        // RANSAC reprojection threshold
+    int min_inliers = 12;          // fewer → fall back to the flow, then to identity
+    double static_max_px = 0.5;    // camera is static if no corner moves more than this
 };
 
 struct CameraMotion {

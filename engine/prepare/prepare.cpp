@@ -1,10 +1,9 @@
 #include "prepare/prepare.h"
 
-#include <nlohmann/json.hpp>
-
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <nlohmann/json.hpp>
 
 #include "io/image_file.h"
 #include "project/project.h"
@@ -102,8 +101,8 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
     res.decisions.has_subject = area >= opts.subject_min_frac;
     if (!res.decisions.has_subject) {
         log.info("no moving subject: one layer (" +
-                 std::string(res.mask_source == "auto" ? "automatic" : "given") +
-                 " masks cover " + fmt("%.3f", 100.0 * area) + "% of the frames)");
+                 std::string(res.mask_source == "auto" ? "automatic" : "given") + " masks cover " +
+                 fmt("%.3f", 100.0 * area) + "% of the frames)");
         if (res.mask_source == "auto")
             for (auto& m : res.masks) std::fill(m.pixels.begin(), m.pixels.end(), 0.0f);
     } else {
@@ -137,8 +136,7 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
                      " px almost everywhere in every frame; no deconvolution needed");
         else if (sharp > 0)
             log.info("frames already sharp: " + std::to_string(sharp) + " of " + nf +
-                     " (radius < " + fmt("%.2f", opts.sharp_radius_px) +
-                     " px almost everywhere)");
+                     " (radius < " + fmt("%.2f", opts.sharp_radius_px) + " px almost everywhere)");
     }
     res.log = log.lines();
     return res;
@@ -146,7 +144,9 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
 
 // ------------------------------------------------------------------------ files
 
-std::string prepare_dir(const Project& project) { return (project.dir / "prep").string(); }
+std::string prepare_dir(const Project& project) {
+    return (project.dir / "prep").string();
+}
 
 bool has_prepare(const Project& project) {
     return fs::exists(fs::path(prepare_dir(project)) / "prepare.json");
@@ -183,8 +183,8 @@ Image read_expect(const std::string& path, int t, int w, int h, int channels) {
                                t));
     if (r.image.channels != channels)
         throw Error(file_error(path,
-                               "has " + std::to_string(r.image.channels) + " channel(s), expected " +
-                                   std::to_string(channels),
+                               "has " + std::to_string(r.image.channels) +
+                                   " channel(s), expected " + std::to_string(channels),
                                t));
     return std::move(r.image);
 }
@@ -195,10 +195,9 @@ void save_prepare(const Project& project, const PrepareResult& r) {
     const std::string dir = prepare_dir(project);
     if (r.width != project.width || r.height != project.height || r.frames != project.frames)
         throw Error(file_error(dir, "preparation is for " + std::to_string(r.width) + "x" +
-                                        std::to_string(r.height) + ", " +
-                                        std::to_string(r.frames) + " frames; the project is " +
-                                        std::to_string(project.width) + "x" +
-                                        std::to_string(project.height) + ", " +
+                                        std::to_string(r.height) + ", " + std::to_string(r.frames) +
+                                        " frames; the project is " + std::to_string(project.width) +
+                                        "x" + std::to_string(project.height) + ", " +
                                         std::to_string(project.frames) + " frames"));
     if (int(r.masks.size()) != r.frames || int(r.motion.to_reference.size()) != r.frames ||
         int(r.flow.fwd.size()) != std::max(0, r.frames - 1) ||
@@ -219,13 +218,16 @@ void save_prepare(const Project& project, const PrepareResult& r) {
     }
     for (int t = 0; t < r.frames; ++t) {
         write_image_file(seq(dir, kMask, t), r.masks[t], PixelFormat::Png8, false);
-        if (!r.coc.empty()) write_image_file(seq(dir, kCoc, t), r.coc[t], PixelFormat::ExrFloat, false);
+        if (!r.coc.empty())
+            write_image_file(seq(dir, kCoc, t), r.coc[t], PixelFormat::ExrFloat, false);
     }
 
     json j;
     j["version"] = kPrepareVersion;
     j["clip"] = {{"width", r.width}, {"height", r.height}, {"frames", r.frames}};
-    j["files"] = {{"flow_fwd", kFlowFwd}, {"flow_bwd", kFlowBwd}, {"mask", kMask},
+    j["files"] = {{"flow_fwd", kFlowFwd},
+                  {"flow_bwd", kFlowBwd},
+                  {"mask", kMask},
                   {"coc", r.coc.empty() ? json(nullptr) : json(kCoc)}};
     j["reference"] = r.motion.reference;
     json hs = json::array();
@@ -261,7 +263,9 @@ PrepareResult load_prepare(const Project& project) {
     }
     PrepareResult r;
     const int n = project.frames, w = project.width, h = project.height;
-    auto field = [&](const char* what) -> std::string { return std::string("field '") + what + "'"; };
+    auto field = [&](const char* what) -> std::string {
+        return std::string("field '") + what + "'";
+    };
     try {
         if (j.at("version").get<int>() != kPrepareVersion)
             throw Error(file_error(jpath, "version " + j.at("version").dump() +
@@ -272,12 +276,11 @@ PrepareResult load_prepare(const Project& project) {
         r.height = c.at("height").get<int>();
         r.frames = c.at("frames").get<int>();
         if (r.width != w || r.height != h || r.frames != n)
-            throw Error(file_error(jpath, "made for " + std::to_string(r.width) + "x" +
-                                              std::to_string(r.height) + ", " +
-                                              std::to_string(r.frames) +
-                                              " frames; the project is " + std::to_string(w) +
-                                              "x" + std::to_string(h) + ", " + std::to_string(n) +
-                                              " frames (prepare again)"));
+            throw Error(file_error(
+                jpath, "made for " + std::to_string(r.width) + "x" + std::to_string(r.height) +
+                           ", " + std::to_string(r.frames) + " frames; the project is " +
+                           std::to_string(w) + "x" + std::to_string(h) + ", " + std::to_string(n) +
+                           " frames (prepare again)"));
         r.motion.reference = j.at("reference").get<int>();
         if (r.motion.reference < 0 || r.motion.reference >= n)
             throw Error(file_error(jpath, field("reference") + " out of range"));
@@ -297,7 +300,8 @@ PrepareResult load_prepare(const Project& project) {
             return hm;
         };
         for (int t = 0; t < n; ++t)
-            r.motion.to_reference.push_back(matrix(hs[t], "homographies[" + std::to_string(t) + "]"));
+            r.motion.to_reference.push_back(
+                matrix(hs[t], "homographies[" + std::to_string(t) + "]"));
         const json& pairs = j.at("pairs");
         if (!pairs.is_array() || int(pairs.size()) != std::max(0, n - 1))
             throw Error(file_error(jpath, field("pairs") + " must hold " +
@@ -317,8 +321,8 @@ PrepareResult load_prepare(const Project& project) {
         for (int v : d.at("frame_sharp").get<std::vector<int>>())
             r.decisions.frame_sharp.push_back(char(v != 0));
         if (int(r.decisions.frame_sharp.size()) != n)
-            throw Error(file_error(jpath, "decisions.frame_sharp must hold " + std::to_string(n) +
-                                              " entries"));
+            throw Error(file_error(
+                jpath, "decisions.frame_sharp must hold " + std::to_string(n) + " entries"));
         r.log = j.at("log").get<std::vector<std::string>>();
     } catch (const json::exception& e) {
         throw Error(file_error(jpath, std::string("missing or malformed field: ") + e.what()));
@@ -344,8 +348,7 @@ PrepareResult load_prepare(const Project& project) {
         if (has_coc) {
             Image c = read_expect(seq(dir, kCoc, t), t, w, h, 1);
             for (float v : c.pixels)
-                if (v < 0)
-                    throw Error(file_error(seq(dir, kCoc, t), "negative radius", t));
+                if (v < 0) throw Error(file_error(seq(dir, kCoc, t), "negative radius", t));
             r.coc.push_back(std::move(c));
         }
     }
