@@ -246,7 +246,9 @@ void forward_hwc(const T* img, const T* rad, T* out, int C, int H, int W,
         constexpr int kRep = CC == 3 ? 3 : 1;
         KernelTable<T, kRep> tab;
         std::vector<T> v(nc), v3;
-#pragma omp for schedule(dynamic, 1)
+        // Static round-robin, not dynamic: which buffer a tile lands in must not depend on
+        // timing, or float rounding differs run to run and a fit is not reproducible per seed.
+#pragma omp for schedule(static, 1)
         for (size_t ti = 0; ti < tiles.size(); ++ti) {
             const Tile& t = tiles[ti];
             for (int py = t.y0; py < t.y1; ++py) {
