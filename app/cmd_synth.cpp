@@ -36,9 +36,11 @@ int cmd_synth(int argc, char** argv) {
     const std::string scene = args.get("scene");
     if (scene.empty() || scene == "list") {
         if (scene.empty())
-            std::printf("usage: refocus synth --scene NAME -o DIR [--size WxH] [--frames N] "
-                        "[--seed S]\n\nscenes:\n");
-        for (const auto& s : synth_scenes()) std::printf("  %-8s %s\n", s.name.c_str(), s.description.c_str());
+            std::printf(
+                "usage: refocus synth --scene NAME -o DIR [--size WxH] [--frames N] "
+                "[--seed S]\n\nscenes:\n");
+        for (const auto& s : synth_scenes())
+            std::printf("  %-8s %s\n", s.name.c_str(), s.description.c_str());
         return scene.empty() ? 2 : 0;
     }
     SynthOptions opts;
@@ -61,7 +63,8 @@ int cmd_synth(int argc, char** argv) {
     const auto t0 = std::chrono::steady_clock::now();
     SynthClip probe(opts);  // validates the options before any file is written
     auto files = write_synth_clip(opts, out, [&](int t) {
-        if (!quiet) std::fprintf(stderr, "\rsynth %s: frame %d/%d", scene.c_str(), t + 1, opts.frames);
+        if (!quiet)
+            std::fprintf(stderr, "\rsynth %s: frame %d/%d", scene.c_str(), t + 1, opts.frames);
     });
     const double secs =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -77,8 +80,8 @@ int cmd_synth(int argc, char** argv) {
         double rmax = 0;
         const SynthFrame f = probe.render(t);
         for (int k = 0; k < opts.frames; ++k)
-            for (double d : {probe.state(k).fg_invdepth, probe.bg_invdepth_top(),
-                             probe.bg_invdepth_bottom()})
+            for (double d :
+                 {probe.state(k).fg_invdepth, probe.bg_invdepth_top(), probe.bg_invdepth_bottom()})
                 rmax = std::max(rmax, probe.lens(k).radius(d));
         write_image_file(args.get("triplet"), synth_triplet(f, rmax), PixelFormat::Png8);
         std::printf("triplet of frame %d -> %s (COC heat map 0..%.1f px)\n", t,

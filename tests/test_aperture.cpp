@@ -8,6 +8,7 @@
 // clang-format on
 
 #include <OpenImageIO/imageio.h>
+
 #include <algorithm>
 #include <cmath>
 #include <nlohmann/json.hpp>
@@ -175,7 +176,7 @@ TEST_CASE("a textured plane at one depth matches the lens blur layer's pillbox")
                     ++n;
                 }
         MESSAGE("r " << r << " mean |aperture - pillbox| " << sum / n << " max " << mx
-                  << " (mean |sharp - pillbox| " << sum_in / n << ")");
+                     << " (mean |sharp - pillbox| " << sum_in / n << ")");
         // Tolerance: the renderer's disc is sampled by ~πr² points and bilinear taps (a ~1 px
         // tent); the pillbox has a one-pixel coverage edge. Mean 1%, max 5% of full scale.
         CHECK(sum / n < 0.01);
@@ -294,11 +295,11 @@ TEST_CASE("occlusion edge: the aperture renderer sees the background behind a bl
     const int y = size / 2;
     const int inside = x0 + 3, outside = x0 - 3;
     MESSAGE("aperture inside G " << ap.rgb.at(inside, y, 1) << " R " << ap.rgb.at(inside, y, 0)
-                              << "; scatter inside G " << sc[1][y][inside] << " R "
-                              << sc[0][y][inside]);
+                                 << "; scatter inside G " << sc[1][y][inside] << " R "
+                                 << sc[0][y][inside]);
     MESSAGE("aperture outside G " << ap.rgb.at(outside, y, 1) << " R " << ap.rgb.at(outside, y, 0)
-                               << "; scatter outside G " << sc[1][y][outside] << " R "
-                               << sc[0][y][outside]);
+                                  << "; scatter outside G " << sc[1][y][outside] << " R "
+                                  << sc[0][y][outside]);
     // Inside the edge the lens sees the wall through the blurred square's rim, exactly the
     // part of the aperture whose rays pass beside the square ...
     CHECK(std::abs(ap.rgb.at(inside, y, 1) - seen_in) < 0.015);
@@ -407,16 +408,17 @@ TEST_CASE("synth flow moves the sharp frame onto the next one") {
     double mx = 0;
     for (int y = 0; y < o.height; ++y)
         for (int x = 0; x < o.width; ++x)
-            mx = std::max(mx, std::abs(f0.coc.at(x, y, 0) -
-                                       clip.aperture() * std::abs(f0.invdepth.at(x, y, 0) -
-                                                                  f0.state.focus)));
+            mx = std::max(
+                mx, std::abs(f0.coc.at(x, y, 0) -
+                             clip.aperture() * std::abs(f0.invdepth.at(x, y, 0) - f0.state.focus)));
     CHECK(mx < 1e-4);
 }
 
 TEST_CASE("refocus synth writes every pass for each scene, deterministically") {
     auto list = test::cli("synth --scene list");
     CHECK(list.code == 0);
-    for (const char* s : {"rack", "walkout", "pan", "hunt"}) CHECK(list.output.find(s) != std::string::npos);
+    for (const char* s : {"rack", "walkout", "pan", "hunt"})
+        CHECK(list.output.find(s) != std::string::npos);
     auto bad = test::cli("synth --scene nope -o " + test::scratch_dir("synth_bad").string());
     CHECK(bad.code != 0);
     CHECK(bad.output.find("unknown scene 'nope'") != std::string::npos);
@@ -425,8 +427,8 @@ TEST_CASE("refocus synth writes every pass for each scene, deterministically") {
         CAPTURE(scene);
         const fs::path a = test::scratch_dir(std::string("synth_") + scene + "_a");
         const fs::path b = test::scratch_dir(std::string("synth_") + scene + "_b");
-        const std::string args = std::string("synth --quiet --scene ") + scene +
-                                 " --size 64x36 --frames 8 --seed 7 -o ";
+        const std::string args =
+            std::string("synth --quiet --scene ") + scene + " --size 64x36 --frames 8 --seed 7 -o ";
         auto r1 = test::cli(args + a.string());
         REQUIRE_MESSAGE(r1.code == 0, r1.output);
         auto r2 = test::cli(args + b.string());
@@ -472,7 +474,8 @@ TEST_CASE("refocus synth writes every pass for each scene, deterministically") {
             const double focus = j["focus"][t];
             double mx = 0;
             for (size_t i = 0; i < coc.size(); ++i)
-                mx = std::max(mx, std::abs(coc.pixels[i] - aperture * std::abs(inv.pixels[i] - focus)));
+                mx = std::max(mx,
+                              std::abs(coc.pixels[i] - aperture * std::abs(inv.pixels[i] - focus)));
             CHECK(mx < 1e-4);
             auto in = OIIO::ImageInput::open(path("flow", "exr"));
             REQUIRE(in);
@@ -484,8 +487,10 @@ TEST_CASE("refocus synth writes every pass for each scene, deterministically") {
             in->close();
             double fmax = 0;
             for (float v : flow) fmax = std::max(fmax, static_cast<double>(std::abs(v)));
-            if (t == 7) CHECK(fmax == 0.0);  // no frame after the last
-            else if (std::string(scene) == "pan") CHECK(fmax > 0.1);
+            if (t == 7)
+                CHECK(fmax == 0.0);  // no frame after the last
+            else if (std::string(scene) == "pan")
+                CHECK(fmax > 0.1);
         }
         // Same seed, same bytes (EXR: same pixels; OpenEXR headers carry a capture date).
         for (const auto& e : fs::directory_iterator(a)) {
@@ -508,7 +513,9 @@ TEST_CASE("refocus synth writes every pass for each scene, deterministically") {
     }
     // Another seed, another clip.
     const fs::path c = test::scratch_dir("synth_rack_seed8");
-    REQUIRE(test::cli("synth --quiet --scene rack --size 64x36 --frames 2 --seed 8 -o " + c.string()).code == 0);
+    REQUIRE(
+        test::cli("synth --quiet --scene rack --size 64x36 --frames 2 --seed 8 -o " + c.string())
+            .code == 0);
     CHECK(read_text_file(c / "sharp_0000.png") !=
           read_text_file(fs::path(REFOCUS_TEST_TMP) / "synth_rack_b" / "sharp_0000.png"));
 }

@@ -14,7 +14,7 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kGoldenAngle = 2.39996322972865332;  // π(3 − √5)
-constexpr double kNoBlurPx = 1e-3;                     // below this a frame is sharp
+constexpr double kNoBlurPx = 1e-3;                    // below this a frame is sharp
 
 // Area of the unit aperture shape (circumradius 1).
 double unit_shape_area(const ApertureLens& lens) {
@@ -56,8 +56,7 @@ inline void bilinear4(const PreparedLayer& L, float px, float py, float out[4]) 
     const float* p10 = &L.rgba[(static_cast<size_t>(ya) * L.w + xb) * 4];
     const float* p01 = &L.rgba[(static_cast<size_t>(yb) * L.w + xa) * 4];
     const float* p11 = &L.rgba[(static_cast<size_t>(yb) * L.w + xb) * 4];
-    const float w00 = (1 - fx) * (1 - fy), w10 = fx * (1 - fy), w01 = (1 - fx) * fy,
-                w11 = fx * fy;
+    const float w00 = (1 - fx) * (1 - fy), w10 = fx * (1 - fy), w01 = (1 - fx) * fy, w11 = fx * fy;
     for (int c = 0; c < 4; ++c) out[c] = w00 * p00[c] + w10 * p10[c] + w01 * p01[c] + w11 * p11[c];
 }
 
@@ -145,7 +144,9 @@ PreparedLayer prepare(const ApertureLayer& L, const ApertureLens& lens) {
 
 }  // namespace
 
-double ApertureLens::radius(double invdepth) const { return aperture * std::abs(invdepth - focus); }
+double ApertureLens::radius(double invdepth) const {
+    return aperture * std::abs(invdepth - focus);
+}
 
 bool inside_aperture(const ApertureLens& lens, double u, double v) {
     if (lens.shape == ApertureShape::Circle) return u * u + v * v <= 1.0;
@@ -269,8 +270,8 @@ ApertureRender render_aperture(const std::vector<ApertureLayer>& layers, const A
                 for (int l : active) {
                     const auto& P = prep[l];
                     // Backward warp: the source p with x = p + s(p)·(u, v).
-                    float sh = P.shift.empty() ? P.shift_const
-                                               : P.shift[static_cast<size_t>(y) * P.w + x];
+                    float sh =
+                        P.shift.empty() ? P.shift_const : P.shift[static_cast<size_t>(y) * P.w + x];
                     float px = x - sh * u, py = y - sh * v;
                     if (!P.shift.empty()) {
                         for (int k = 0; k < iters; ++k) {

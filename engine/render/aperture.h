@@ -59,26 +59,26 @@ struct ApertureLens {
 // radius beyond the output window (see `ApertureRenderOptions::crop_*`); samples beyond the
 // layer's edge repeat its border pixels.
 struct ApertureLayer {
-    Image rgb;        // 3 channels, linear light
-    Image alpha;      // 1 channel in [0,1]; empty: opaque
-    Image invdepth;   // 1 channel; empty: `invdepth_const` everywhere
+    Image rgb;       // 3 channels, linear light
+    Image alpha;     // 1 channel in [0,1]; empty: opaque
+    Image invdepth;  // 1 channel; empty: `invdepth_const` everywhere
     float invdepth_const = 0.0f;
     bool premultiplied = false;  // true: `rgb` is already multiplied by `alpha`
 };
 
 struct ApertureRenderOptions {
-    double samples_per_px2 = 1.0;  // aperture samples per px² of the largest blur shape
-    int min_samples = 16;          // when there is any blur (≥ 1e-3 px)
-    int max_samples = 4096;        // cap: beyond it (r ≳ 36 px) the sample spacing exceeds 1 px
-    int samples = 0;               // > 0: use exactly this many (ignores the rules above)
+    double samples_per_px2 = 1.0;    // aperture samples per px² of the largest blur shape
+    int min_samples = 16;            // when there is any blur (≥ 1e-3 px)
+    int max_samples = 4096;          // cap: beyond it (r ≳ 36 px) the sample spacing exceeds 1 px
+    int samples = 0;                 // > 0: use exactly this many (ignores the rules above)
     int fixed_point_iterations = 2;  // refinements of the backward warp per layer and sample
     // Output window in layer pixels; crop_w/crop_h = 0: the whole layer.
     int crop_x = 0, crop_y = 0, crop_w = 0, crop_h = 0;
 };
 
 struct ApertureRender {
-    Image rgb;    // 3 channels, linear light, premultiplied by `alpha`
-    Image alpha;  // 1 channel: coverage (1 wherever an opaque layer is behind)
+    Image rgb;                // 3 channels, linear light, premultiplied by `alpha`
+    Image alpha;              // 1 channel: coverage (1 wherever an opaque layer is behind)
     int samples = 0;          // aperture samples used
     double max_radius = 0.0;  // largest blur radius among the layers' visible pixels, px
 };

@@ -34,13 +34,17 @@ inline uint32_t hash(uint32_t seed, int a, int b = 0, int c = 0) {
     h = mix(h ^ (static_cast<uint32_t>(c) * 0xcb1ab31fU));
     return h;
 }
-inline double unit(uint32_t h) { return (h >> 8) * (1.0 / 16777216.0); }
+inline double unit(uint32_t h) {
+    return (h >> 8) * (1.0 / 16777216.0);
+}
 
 double smoothstep(double a, double b, double x) {
     const double t = std::clamp((x - a) / (b - a), 0.0, 1.0);
     return t * t * (3 - 2 * t);
 }
-double lerp(double a, double b, double t) { return a + (b - a) * t; }
+double lerp(double a, double b, double t) {
+    return a + (b - a) * t;
+}
 
 // Value noise on the integer lattice, smooth in between; fbm of a few octaves.
 double value_noise(uint32_t seed, double x, double y) {
@@ -79,7 +83,9 @@ struct Rgb {
 Rgb mixc(const Rgb& a, const Rgb& b, double t) {
     return {lerp(a.r, b.r, t), lerp(a.g, b.g, t), lerp(a.b, b.b, t)};
 }
-Rgb scale(const Rgb& a, double k) { return {a.r * k, a.g * k, a.b * k}; }
+Rgb scale(const Rgb& a, double k) {
+    return {a.r * k, a.g * k, a.b * k};
+}
 
 // A saturated-ish linear colour from a hash, with value in [lo, hi].
 Rgb palette(uint32_t h, double lo, double hi) {
@@ -89,12 +95,18 @@ Rgb palette(uint32_t h, double lo, double hi) {
     const double f = hue - std::floor(hue);
     const double p = v * (1 - sat), q = v * (1 - sat * f), t = v * (1 - sat * (1 - f));
     switch (i) {
-        case 0: return {v, t, p};
-        case 1: return {q, v, p};
-        case 2: return {p, v, t};
-        case 3: return {p, q, v};
-        case 4: return {t, p, v};
-        default: return {v, p, q};
+        case 0:
+            return {v, t, p};
+        case 1:
+            return {q, v, p};
+        case 2:
+            return {p, v, t};
+        case 3:
+            return {p, q, v};
+        case 4:
+            return {t, p, v};
+        default:
+            return {v, p, q};
     }
 }
 
@@ -131,7 +143,7 @@ Rgb wall(uint32_t seed, double u, double v) {
     const Rgb c1 = palette(h, 0.45, 0.85), c2 = palette(mix(h ^ 0x55), 0.02, 0.15);
     Rgb c;
     switch (h % 7) {
-        case 0:  // small text, dark ink on light paper
+        case 0:    // small text, dark ink on light paper
         case 1: {  // larger text, light on dark
             const double k = (h % 7 == 0) ? 1.0 : 1.5 + (h >> 12) % 2;
             const bool ink = glyph_ink(seed ^ h, x - 2, y - 2, k);
@@ -140,7 +152,8 @@ Rgb wall(uint32_t seed, double u, double v) {
         }
         case 2: {  // checkers, 2..6 px
             const double cell = 2 + (h >> 9) % 5;
-            const int a = static_cast<int>(std::floor(x / cell)) + static_cast<int>(std::floor(y / cell));
+            const int a =
+                static_cast<int>(std::floor(x / cell)) + static_cast<int>(std::floor(y / cell));
             c = (a & 1) ? c1 : c2;
             break;
         }
@@ -180,7 +193,8 @@ double subject_sdf(double x, double y) {
     const double head = std::hypot(x, y + 38) - 15;
     auto box = [](double px, double py, double hx, double hy, double r) {
         const double qx = std::abs(px) - hx + r, qy = std::abs(py) - hy + r;
-        return std::hypot(std::max(qx, 0.0), std::max(qy, 0.0)) + std::min(std::max(qx, qy), 0.0) - r;
+        return std::hypot(std::max(qx, 0.0), std::max(qy, 0.0)) + std::min(std::max(qx, qy), 0.0) -
+               r;
     };
     const double neck = box(x, y + 20, 6, 6, 2);
     const double torso = box(x, y + 20 - 52 + 2, 28, 40, 12);
@@ -192,7 +206,8 @@ Rgb subject_color(uint32_t seed, double x, double y) {
               shirt2 = palette(hash(seed, 78), 0.02, 0.12);
     if (y < -22) {  // head: skin with pores, eyes, mouth, hair
         Rgb c = scale(skin, 0.8 + 0.4 * fbm(seed + 9, x / 1.5, y / 1.5, 3));
-        if (y < -46 + 0.02 * x * x) c = scale({0.08, 0.05, 0.03}, 0.7 + 0.6 * value_noise(seed, x * 1.3, y / 4));
+        if (y < -46 + 0.02 * x * x)
+            c = scale({0.08, 0.05, 0.03}, 0.7 + 0.6 * value_noise(seed, x * 1.3, y / 4));
         if (std::hypot(std::abs(x) - 5.5, y + 40) < 1.8) c = {0.02, 0.02, 0.03};
         if (std::abs(y + 31) < 0.8 && std::abs(x) < 5) c = {0.25, 0.05, 0.05};
         return c;
@@ -203,8 +218,9 @@ Rgb subject_color(uint32_t seed, double x, double y) {
     if (x > -22 && x < 2 && y > -2 && y < 16)
         c = glyph_ink(seed + 3, x + 22, y + 2, 1.0) ? Rgb{0.02, 0.02, 0.02} : Rgb{0.8, 0.8, 0.75};
     if (x > 8 && x < 22 && y > 24 && y < 40)
-        c = ((static_cast<int>(std::floor(x / 2)) + static_cast<int>(std::floor(y / 2))) & 1) ? shirt2
-                                                                                           : shirt1;
+        c = ((static_cast<int>(std::floor(x / 2)) + static_cast<int>(std::floor(y / 2))) & 1)
+                ? shirt2
+                : shirt1;
     return c;
 }
 
@@ -213,9 +229,11 @@ struct SceneDef {
     const char* description;
 };
 const SceneDef kScenes[] = {
-    {"rack", "rack focus: focus pulls from the far wall to the subject (inverse depth 0.22 -> 1.0)"},
-    {"walkout", "a subject walks away out of the focal plane (its inverse depth 1.05 -> 0.42, "
-                "focus fixed at 1.0)"},
+    {"rack",
+     "rack focus: focus pulls from the far wall to the subject (inverse depth 0.22 -> 1.0)"},
+    {"walkout",
+     "a subject walks away out of the focal plane (its inverse depth 1.05 -> 0.42, "
+     "focus fixed at 1.0)"},
     {"pan", "camera pan with fixed focus on the far wall; the subject stays blurred; parallax"},
     {"hunt", "autofocus hunting: focus oscillates around the subject with decaying amplitude"},
 };
@@ -322,7 +340,8 @@ std::vector<ApertureLayer> SynthClip::layers(int t) const {
     const auto st = state(t);
     const int m = m_margin, lw = m_opts.width + 2 * m, lh = m_opts.height + 2 * m;
     const double S = m_scale;
-    const uint32_t seed = m_opts.seed;
+    // Each scene gets its own wall and subject for a seed.
+    const uint32_t seed = hash(m_opts.seed, scene_index(m_opts.scene), 0, 0x5eed);
     ApertureLayer bg, fg;
     bg.rgb = Image(lw, lh, 3);
     bg.invdepth = Image(lw, lh, 1);
@@ -350,7 +369,8 @@ std::vector<ApertureLayer> SynthClip::layers(int t) const {
                     const double v = (y + oy - st.shake_y) / S;
                     const Rgb c = wall(seed, u, v);
                     acc = {acc.r + c.r, acc.g + c.g, acc.b + c.b};
-                    const Rgb f = subject_color(seed, (x + ox - fcx) / fscale, (y + oy - fcy) / fscale);
+                    const Rgb f =
+                        subject_color(seed, (x + ox - fcx) / fscale, (y + oy - fcy) / fscale);
                     facc = {facc.r + f.r, facc.g + f.g, facc.b + f.b};
                 }
             const double n = kSS * kSS;
@@ -457,32 +477,29 @@ std::string SynthClip::clip_json() const {
         shake.push_back({s.shake_x, s.shake_y});
     }
     j["focus"] = focus;
-    j["foreground"] = {{"invdepth", fgd},
-                       {"alpha_edge_px", 1.2},
-                       {"size", "proportional to its inverse depth"}};
-    j["background"] = {{"invdepth_top", m_d_top},
-                       {"invdepth_bottom", m_d_bottom},
-                       {"invdepth_formula",
-                        "invdepth(y) = top + (bottom - top) * (y - shake_y + 0.5) / height"}};
+    j["foreground"] = {
+        {"invdepth", fgd}, {"alpha_edge_px", 1.2}, {"size", "proportional to its inverse depth"}};
+    j["background"] = {
+        {"invdepth_top", m_d_top},
+        {"invdepth_bottom", m_d_bottom},
+        {"invdepth_formula", "invdepth(y) = top + (bottom - top) * (y - shake_y + 0.5) / height"}};
     j["camera"] = {{"pan", pan},
                    {"pan_meaning", "a point at inverse depth d is displaced pan * d px in x"},
                    {"shake_px", shake},
                    {"shake_meaning", "rotation: displaces every depth alike"}};
-    j["files"] = {{"input", "input_%04d.png"},
-                  {"sharp", "sharp_%04d.png"},
-                  {"coc", "coc_%04d.exr"},
-                  {"alpha", "alpha_%04d.png"},
-                  {"flow", "flow_%04d.exr"},
-                  {"invdepth", "invdepth_%04d.exr"}};
-    j["passes"] = {
-        {"input", "misfocused frames, sRGB 8-bit, rendered by the aperture renderer"},
-        {"sharp", "all-in-focus composite, sRGB 8-bit"},
-        {"coc", "blur radius px of the visible surface of the sharp frame (foreground where "
-                "alpha >= 0.5), 1 channel float"},
-        {"alpha", "foreground alpha, linear 8-bit (not sRGB)"},
-        {"flow", "forward optical flow t -> t+1 of the visible surface, px, channels (dx, dy); "
-                 "the last frame's flow is zero"},
-        {"invdepth", "inverse depth of the visible surface, 1 channel float"}};
+    j["files"] = {{"input", "input_%04d.png"}, {"sharp", "sharp_%04d.png"},
+                  {"coc", "coc_%04d.exr"},     {"alpha", "alpha_%04d.png"},
+                  {"flow", "flow_%04d.exr"},   {"invdepth", "invdepth_%04d.exr"}};
+    j["passes"] = {{"input", "misfocused frames, sRGB 8-bit, rendered by the aperture renderer"},
+                   {"sharp", "all-in-focus composite, sRGB 8-bit"},
+                   {"coc",
+                    "blur radius px of the visible surface of the sharp frame (foreground where "
+                    "alpha >= 0.5), 1 channel float"},
+                   {"alpha", "foreground alpha, linear 8-bit (not sRGB)"},
+                   {"flow",
+                    "forward optical flow t -> t+1 of the visible surface, px, channels (dx, dy); "
+                    "the last frame's flow is zero"},
+                   {"invdepth", "inverse depth of the visible surface, 1 channel float"}};
     return j.dump(2) + "\n";
 }
 
@@ -530,9 +547,18 @@ Image coc_heatmap(const Image& coc, double max_radius) {
     // Turbo colour map (Mikhailov 2019), polynomial fit; values are sRGB, decoded to linear.
     auto turbo = [](double x, float out[3]) {
         x = std::clamp(x, 0.0, 1.0);
-        const double r = 0.13572138 + x * (4.61539260 + x * (-42.66032258 + x * (132.13108234 + x * (-152.94239396 + x * 59.28637943))));
-        const double g = 0.09140261 + x * (2.19418839 + x * (4.84296658 + x * (-14.18503333 + x * (4.27729857 + x * 2.82956604))));
-        const double b = 0.10667330 + x * (12.64194608 + x * (-60.58204836 + x * (110.36276771 + x * (-89.90310912 + x * 27.34824973))));
+        const double r =
+            0.13572138 +
+            x * (4.61539260 +
+                 x * (-42.66032258 + x * (132.13108234 + x * (-152.94239396 + x * 59.28637943))));
+        const double g =
+            0.09140261 +
+            x * (2.19418839 +
+                 x * (4.84296658 + x * (-14.18503333 + x * (4.27729857 + x * 2.82956604))));
+        const double b =
+            0.10667330 +
+            x * (12.64194608 +
+                 x * (-60.58204836 + x * (110.36276771 + x * (-89.90310912 + x * 27.34824973))));
         out[0] = srgb_to_linear(static_cast<float>(std::clamp(r, 0.0, 1.0)));
         out[1] = srgb_to_linear(static_cast<float>(std::clamp(g, 0.0, 1.0)));
         out[2] = srgb_to_linear(static_cast<float>(std::clamp(b, 0.0, 1.0)));

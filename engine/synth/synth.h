@@ -45,19 +45,19 @@ struct SynthOptions {
 
 // Camera, subject and lens of one frame (screen px, inverse depth).
 struct SynthFrameState {
-    double focus = 0.0;       // inverse depth in focus
+    double focus = 0.0;  // inverse depth in focus
     double fg_invdepth = 0.0;
     double fg_x = 0.0, fg_y = 0.0;  // subject centre before camera motion, px
-    double pan = 0.0;         // camera translation: a point at inverse depth d moves pan·d px
+    double pan = 0.0;  // camera translation: a point at inverse depth d moves pan·d px
     double shake_x = 0.0, shake_y = 0.0;  // camera rotation, px (depth-independent)
 };
 
 struct SynthFrame {
-    Image input;  // misfocused, linear RGB (aperture renderer)
-    Image sharp;  // all in focus, linear RGB
-    Image coc;    // 1 channel: blur radius px of the visible surface (alpha ≥ 0.5: foreground)
-    Image alpha;  // 1 channel: foreground alpha
-    Image flow;   // 2 channels: forward flow t→t+1 of the visible surface, px (0 at the last)
+    Image input;     // misfocused, linear RGB (aperture renderer)
+    Image sharp;     // all in focus, linear RGB
+    Image coc;       // 1 channel: blur radius px of the visible surface (alpha ≥ 0.5: foreground)
+    Image alpha;     // 1 channel: foreground alpha
+    Image flow;      // 2 channels: forward flow t→t+1 of the visible surface, px (0 at the last)
     Image invdepth;  // 1 channel: inverse depth of the visible surface
     SynthFrameState state;
     int samples = 0;          // aperture samples used
@@ -65,16 +65,16 @@ struct SynthFrame {
 };
 
 class SynthClip {
-public:
+  public:
     // Throws refocus::Error for an unknown scene (listing the known ones) or a bad size.
     explicit SynthClip(const SynthOptions& opts);
 
     const SynthOptions& options() const { return m_opts; }
     int frames() const { return m_opts.frames; }
-    double aperture() const { return m_aperture; }     // px per unit of inverse depth
+    double aperture() const { return m_aperture; }  // px per unit of inverse depth
     double bg_invdepth_top() const { return m_d_top; }
     double bg_invdepth_bottom() const { return m_d_bottom; }
-    int margin() const { return m_margin; }            // layer margin beyond the frame, px
+    int margin() const { return m_margin; }  // layer margin beyond the frame, px
 
     SynthFrameState state(int t) const;
     ApertureLens lens(int t) const;
@@ -85,7 +85,7 @@ public:
     // clip.json: scene, size, frames, fps, seed, lens, radius formula, per-frame focus, ...
     std::string clip_json() const;
 
-private:
+  private:
     double bg_invdepth(double y) const;  // y in screen px (the surface's own row)
     SynthOptions m_opts;
     double m_scale = 1.0;  // H / 180: scene units are px of the 320x180 reference
