@@ -190,6 +190,10 @@ const Bench kBenches[] = {
      "blur [--size 512x288] [--kernel disk|pillbox|gaussian] [--beta B] [--reps N]\n"
      "             [--tensor-reps N] [--no-tensor] [--tensor-max-gb G]\n"
      "             lens blur layer: fast path vs LibTorch tensor ops"},
+    {"fit", bench_fit,
+     "fit --clip <synth-dir> [--preset fast|paper|perframe] [--minutes M] [--oracle-coc]\n"
+     "             [--at 0.5,1,2,5,10] [--csv out.csv]\n"
+     "             run time against error: sharp PSNR/SSIM/tPSNR vs ground truth, reblur PSNR"},
 };
 
 }  // namespace

@@ -23,6 +23,14 @@ const Command kCommands[] = {
      "print size, frames, fps and what a project holds"},
     {"bench", refocus::cmd_bench, "bench blur [--size WxH] [--kernel disk|pillbox|gaussian]",
      "print benchmark figures (bench with no name lists them)"},
+    {"fit", refocus::cmd_fit,
+     "fit <project> [--preset fast|paper|perframe] [--minutes M | --iters N] [--coc <pattern>]\n"
+     "           [--mask <pattern>] [--seed S] [--resume]",
+     "fit sharp layered atlases to the project's clip (checkpoints; --resume continues)"},
+    {"export", refocus::cmd_export,
+     "export <project> --what sharp|reblur|atlas|alpha|coc|uv|all [--format png|exr|tiff|mp4]\n"
+     "           --out <dir-or-file>",
+     "write the fit's results: sequences <what>_%04d.<ext> from 0, or an mp4"},
     {"synth", refocus::cmd_synth,
      "synth --scene rack|walkout|pan|hunt|list -o <dir> [--size WxH] [--frames N] [--seed S]",
      "render a misfocused test clip with exact ground truth (sharp, COC, alpha, flow)"},

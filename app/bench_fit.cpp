@@ -1,0 +1,126 @@
+// refocus bench fit: run time against error on a `refocus synth` clip with ground truth.
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+
+#include "args.h"
+#include "commands.h"
+#include "fit/fit_session.h"
+#include "fit/tensor_image.h"
+#include "metrics/metrics.h"
+#include "util/error.h"
+
+namespace refocus {
+
+namespace {
+
+struct Row {
+    double minutes = 0;
+    int64_t step = 0;
+    double psnr = 0, ssim = 0, tpsnr = 0, reblur_psnr = 0;
+};
+
+Row evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<Image>& input) {
+    std::vector<Image> sharp, reblur;
+    for (int t = 0; t < static_cast<int>(gt.size()); ++t) {
+        Layers L = engine.render_frame(t);
+        torch::NoGradGuard g;
+        sharp.push_back(tensor_to_image(L.sharp[0].clamp_min(0)));
+        reblur.push_back(tensor_to_image(engine.reblur(L, {t})[0].clamp_min(0)));
+    }
+    Row r;
+    FitSnapshot s = engine.snapshot();
+    r.minutes = s.elapsed_s / 60.0;
+    r.step = s.step;
+    r.psnr = mean_psnr(sharp, gt);
+    r.ssim = mean_ssim(sharp, gt);
+    r.tpsnr = gt.size() > 1 ? tpsnr(sharp, gt) : 0.0;
+    r.reblur_psnr = mean_psnr(reblur, input);
+    return r;
+}
+
+std::vector<double> parse_times(const std::string& s) {
+    std::vector<double> v;
+    std::stringstream ss(s);
+    std::string item;
+    while (std::getline(ss, item, ',')) v.push_back(std::stod(item));
+    return v;
+}
+
+}  // namespace
+
+int bench_fit(int argc, char** argv) {
+    Args a(argc, argv, 3, {"oracle-coc"});
+    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "at", "csv", "work", "seed"});
+    if (!a.has("clip"))
+        throw Error("usage: refocus bench fit --clip <synth-dir> --preset fast|paper|perframe "
+                    "[--minutes M] [--oracle-coc] [--at 0.5,1,2,5,10] [--csv out.csv]");
+    const fs::path clip = a.get("clip");
+    if (!fs::exists(clip / "clip.json"))
+        throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
+    const std::string preset = a.get("preset", "fast");
+    const double minutes = a.get_double("minutes", 10.0);
+    const bool oracle = a.has("oracle-coc");
+    const fs::path work = a.get("work", (fs::temp_directory_path() / ("refocus_bench_" +
+                                         clip.filename().string() + "_" + preset)).string());
+    fs::remove_all(work);
+    Project project = create_project((clip / "input_%04d.png").string(), work, {});
+    std::vector<Image> gt = read_all_frames((clip / "sharp_%04d.png").string());
+    std::vector<Image> input;
+    for (int t = 0; t < project.frames; ++t) input.push_back(project.read_frame(t));
+
+    FitSettings s;
+    s.fit.preset = preset;
+    s.fit.minutes = minutes;
+    s.fit.iters = a.get_int("iters", 0);
+    s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
+    if (oracle) s.setup.coc_path = (clip / "coc_%04d.exr").string();
+    PrepareLog log([](const std::string& l) { std::fprintf(stderr, "  %s\n", l.c_str()); });
+    auto data = build_fit_data(project, s.setup, log);
+    FitEngine engine(data, s.fit);
+
+    std::vector<double> at = parse_times(a.get("at", "0.5,1,2,5,10,20,30"));
+    std::vector<Row> rows;
+    const double in_psnr = mean_psnr(input, gt), in_ssim = mean_ssim(input, gt);
+    const double in_t = gt.size() > 1 ? tpsnr(input, gt) : 0.0;
+    std::printf("clip %s (%dx%d, %d frames), preset %s, radius %s\n", clip.string().c_str(),
+                project.width, project.height, project.frames, preset.c_str(),
+                oracle ? "ground truth (--coc)" : "estimated");
+    std::printf("input vs ground truth: PSNR %.2f dB  SSIM %.4f  tPSNR %.2f dB\n", in_psnr, in_ssim, in_t);
+    std::printf("%8s %7s %9s %7s %9s %12s\n", "minutes", "step", "PSNR", "SSIM", "tPSNR", "reblur PSNR");
+    size_t next = 0;
+    while (!engine.done()) {
+        engine.step();
+        const double el = engine.snapshot().elapsed_s / 60.0;
+        if (next < at.size() && el >= at[next]) {
+            while (next < at.size() && el >= at[next]) ++next;
+            rows.push_back(evaluate(engine, gt, input));
+            const Row& r = rows.back();
+            std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f\n", r.minutes, (long long)r.step,
+                        r.psnr, r.ssim, r.tpsnr, r.reblur_psnr);
+            std::fflush(stdout);
+        }
+    }
+    rows.push_back(evaluate(engine, gt, input));
+    // Keep the result: `refocus export <work>` shows what the figures measured.
+    engine.save_checkpoint(fit_dir(project));
+    FitSnapshot snap = engine.snapshot();
+    write_fit_settings(project, s, &snap);
+    const Row& r = rows.back();
+    std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f  (end)\n", r.minutes, (long long)r.step,
+                r.psnr, r.ssim, r.tpsnr, r.reblur_psnr);
+    std::printf("fitted project kept in %s\n", work.string().c_str());
+    std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - in_psnr, r.tpsnr - in_t);
+    if (a.has("csv")) {
+        std::ostringstream csv;
+        csv << "clip,preset,radius,minutes,step,psnr,ssim,tpsnr,reblur_psnr,input_psnr,input_tpsnr\n";
+        for (const Row& x : rows)
+            csv << clip.filename().string() << "," << preset << "," << (oracle ? "oracle" : "estimated")
+                << "," << x.minutes << "," << x.step << "," << x.psnr << "," << x.ssim << ","
+                << x.tpsnr << "," << x.reblur_psnr << "," << in_psnr << "," << in_t << "\n";
+        write_file_atomic(a.get("csv"), csv.str());
+    }
+    return 0;
+}
+
+}  // namespace refocus

@@ -1,0 +1,156 @@
+// refocus fit / refocus export
+#include <unistd.h>
+
+#include <csignal>
+#include <cstdio>
+
+#include "args.h"
+#include "commands.h"
+#include "fit/fit_session.h"
+#include "util/error.h"
+
+namespace refocus {
+
+namespace {
+
+volatile std::sig_atomic_t g_interrupted = 0;
+
+std::string clock_text(double s) {
+    if (s < 0) return "--:--";
+    char b[32];
+    int m = static_cast<int>(s) / 60, sec = static_cast<int>(s) % 60;
+    std::snprintf(b, sizeof b, "%d:%02d", m, sec);
+    return b;
+}
+
+// A progress bar on a terminal, plain lines (every ~10 s) when not.
+class Progress {
+public:
+    void update(const FitSnapshot& s, bool force = false) {
+        const bool tty = isatty(fileno(stderr));
+        if (!tty && !force && s.elapsed_s - m_last < 10.0) return;
+        m_last = s.elapsed_s;
+        std::string terms;
+        for (const auto& [k, v] : s.terms) {
+            char b[48];
+            std::snprintf(b, sizeof b, " %s=%.4g", k.c_str(), v);
+            terms += b;
+        }
+        if (tty) {
+            const int width = 24, fill = static_cast<int>(s.progress * width);
+            std::fprintf(stderr, "\r[%s%s] %3.0f%% step %lld  reblur %.2f dB  elapsed %s  ETA %s   ",
+                         std::string(fill, '#').c_str(), std::string(width - fill, ' ').c_str(),
+                         100 * s.progress, static_cast<long long>(s.step), s.reblur_psnr,
+                         clock_text(s.elapsed_s).c_str(), clock_text(s.eta_s).c_str());
+            if (force) std::fprintf(stderr, "\n");
+        } else {
+            std::fprintf(stderr, "step=%lld elapsed=%.1fs eta=%.0fs reblur_psnr=%.2f loss=%.5f%s\n",
+                         static_cast<long long>(s.step), s.elapsed_s, s.eta_s, s.reblur_psnr, s.loss,
+                         terms.c_str());
+        }
+    }
+
+private:
+    double m_last = -1e9;
+};
+
+}  // namespace
+
+int cmd_fit(int argc, char** argv) {
+    Args a(argc, argv, 2, {"resume", "reprepare"});
+    a.check_known({"preset", "minutes", "iters", "coc", "mask", "seed", "resume", "batch",
+                   "checkpoint-seconds", "reprepare"});
+    if (a.positional().size() != 1)
+        throw Error("usage: refocus fit <project> [--preset fast|paper|perframe] [--minutes M | "
+                    "--iters N] [--coc <pattern>] [--mask <pattern>] [--seed S] [--resume]");
+    Project project = Project::load(a.positional()[0]);
+    FitSettings s = read_fit_settings(project);
+    const bool resume = a.has("resume");
+    if (!resume) s = FitSettings{};
+    s.fit.preset = a.get("preset", s.fit.preset);
+    if (a.has("minutes") || a.has("iters")) {
+        s.fit.minutes = a.get_double("minutes", 0.0);
+        s.fit.iters = a.get_int("iters", 0);
+    }
+    if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.minutes = 5.0;
+    if (s.fit.minutes < 0 || s.fit.iters < 0) throw Error("--minutes and --iters must be positive");
+    s.fit.seed = static_cast<uint64_t>(a.get_int("seed", static_cast<int>(s.fit.seed)));
+    s.fit.batch = a.get_int("batch", s.fit.batch);
+    s.fit.checkpoint_seconds = a.get_double("checkpoint-seconds", 60.0);
+    if (a.has("coc")) s.setup.coc_path = a.get("coc");
+    if (a.has("mask")) s.setup.mask_path = a.get("mask");
+    s.setup.force_prepare = a.has("reprepare");
+
+    PrepareLog log([](const std::string& line) { std::fprintf(stderr, "  %s\n", line.c_str()); });
+    auto data = build_fit_data(project, s.setup, log);
+    FitEngine engine(data, s.fit);
+    const fs::path dir = fit_dir(project);
+    if (resume) {
+        if (!FitEngine::has_checkpoint(dir))
+            throw Error(file_error(dir.string(), "nothing to resume: no checkpoint (run without --resume)"));
+        engine.load_checkpoint(dir);
+        std::fprintf(stderr, "resumed at step %lld (%.1f s of training)\n",
+                     static_cast<long long>(engine.snapshot().step), engine.snapshot().elapsed_s);
+    } else if (FitEngine::has_checkpoint(dir)) {
+        std::fprintf(stderr, "note: starting over (the previous fit is replaced; use --resume to continue it)\n");
+    }
+    write_fit_settings(project, s, nullptr);
+
+    std::signal(SIGINT, [](int) { g_interrupted = 1; });
+    std::signal(SIGTERM, [](int) { g_interrupted = 1; });
+    Progress bar;
+    std::fprintf(stderr, "fitting %s: preset %s, budget %s\n", project.name.c_str(),
+                 s.fit.preset.c_str(),
+                 s.fit.iters > 0 ? (std::to_string(s.fit.iters) + " steps").c_str()
+                                 : (std::to_string(s.fit.minutes) + " min").c_str());
+    while (!engine.done()) {
+        engine.step();
+        if (g_interrupted) engine.request_stop();
+        bar.update(engine.snapshot());
+        engine.maybe_checkpoint(dir);
+    }
+    engine.save_checkpoint(dir);
+    FitSnapshot snap = engine.snapshot();
+    bar.update(snap, true);
+    write_fit_settings(project, s, &snap);
+    std::printf("fit %s: %lld steps in %.1f s, reblur PSNR %.2f dB; checkpoint %s\n",
+                snap.status.c_str(), static_cast<long long>(snap.step), snap.elapsed_s,
+                snap.reblur_psnr, (dir / "checkpoint.json").string().c_str());
+    return g_interrupted ? 130 : 0;
+}
+
+int cmd_export(int argc, char** argv) {
+    Args a(argc, argv, 2);
+    a.check_known({"what", "format", "out"});
+    if (a.positional().size() != 1 || !a.has("out"))
+        throw Error("usage: refocus export <project> --what sharp|reblur|atlas|alpha|coc|uv|all "
+                    "[--format png|exr|tiff|mp4] --out <dir-or-file>");
+    Project project = Project::load(a.positional()[0]);
+    PrepareLog log;
+    auto engine = open_fitted(project, log);
+    const std::string what = a.get("what", "sharp");
+    const std::string out = a.get("out");
+    std::vector<ExportPass> passes;
+    if (what == "all") {
+        passes = {ExportPass::Sharp, ExportPass::Reblur, ExportPass::Atlas,
+                  ExportPass::Alpha, ExportPass::Coc,    ExportPass::Uv};
+    } else {
+        passes = {parse_export_pass(what)};
+    }
+    for (ExportPass p : passes) {
+        const bool data_pass = p == ExportPass::Coc || p == ExportPass::Uv;
+        std::string format = a.get("format", data_pass ? "exr" : "png");
+        if (what == "all" && data_pass) format = "exr";
+        if (what == "all" && p == ExportPass::Atlas && format == "mp4") format = "png";
+        std::string target = out;
+        if (what == "all") {
+            target = (fs::path(out) / export_pass_name(p)).string();
+            if (format == "mp4") target += ".mp4";
+        }
+        auto files = export_pass(*engine, p, format, target, project.fps);
+        std::printf("%s: %zu file(s) in %s\n", export_pass_name(p), files.size(), target.c_str());
+    }
+    return 0;
+}
+
+}  // namespace refocus

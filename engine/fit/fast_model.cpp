@@ -1,0 +1,356 @@
+#include "fit/fast_model.h"
+
+#include <torch/nn/functional.h>
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+
+#include "fit/losses.h"
+#include "ops/lens_blur.h"
+
+#include <opencv2/video/tracking.hpp>
+#include "util/error.h"
+
+namespace refocus {
+
+namespace F = torch::nn::functional;
+
+namespace {
+
+torch::Tensor upsample(const torch::Tensor& x, int64_t h, int64_t w, bool corners = false) {
+    if (x.size(-2) == h && x.size(-1) == w) return x;
+    return F::interpolate(x, F::InterpolateFuncOptions()
+                                 .size(std::vector<int64_t>{h, w})
+                                 .mode(torch::kBilinear)
+                                 .align_corners(corners));
+}
+
+// Bicubic, border padding, align_corners = false. Bilinear resampling at fractional offsets is
+// itself a blur that the atlas would have to undo. (The C++ functional options of LibTorch 1.13
+// lack kBicubic; the ATen op takes the mode as an integer: 0 bilinear, 1 nearest, 2 bicubic.)
+torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& grid) {
+    return torch::grid_sampler(input, grid, /*interpolation_mode=*/2, /*padding_mode=*/1,
+                               /*align_corners=*/false);
+}
+
+torch::Tensor translation(double tx, double ty) {
+    auto m = torch::eye(3, torch::kFloat64);
+    m[0][2] = tx;
+    m[1][2] = ty;
+    return m;
+}
+
+}  // namespace
+
+FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d), m_opts(opts) {
+    const int64_t T = d.frames, H = d.height, W = d.width;
+    auto ys = torch::arange(H, torch::kFloat32), xs = torch::arange(W, torch::kFloat32);
+    auto grid = torch::meshgrid({ys, xs}, "ij");
+    m_pixels = torch::stack({grid[1].flatten(), grid[0].flatten(), torch::ones({H * W})}, 1);
+    const int64_t gh = H / opts.warp_cell_px + 2, gw = W / opts.warp_cell_px + 2;
+
+    // Background atlas: the bounding box of every frame mapped into the reference frame.
+    double x0 = 1e30, y0 = 1e30, x1 = -1e30, y1 = -1e30;
+    auto to_ref = d.to_ref.to(torch::kFloat64).contiguous();
+    for (int64_t t = 0; t < T; ++t) {
+        auto m = to_ref[t];
+        for (double cy : {0.0, H / 2.0, double(H - 1)})
+            for (double cx : {0.0, W / 2.0, double(W - 1)}) {
+                auto p = torch::matmul(m, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+                double px = p[0].item<double>() / p[2].item<double>();
+                double py = p[1].item<double>() / p[2].item<double>();
+                x0 = std::min(x0, px), x1 = std::max(x1, px);
+                y0 = std::min(y0, py), y1 = std::max(y1, py);
+            }
+    }
+    // Keep the atlas bounded even if a homography went wild (3x the frame at most).
+    x0 = std::max(x0, -double(W)), y0 = std::max(y0, -double(H));
+    x1 = std::min(x1, 2.0 * W), y1 = std::min(y1, 2.0 * H);
+    m_bg.origin_x = std::floor(x0) - 2;
+    m_bg.origin_y = std::floor(y0) - 2;
+    m_bg.width = static_cast<int64_t>(std::ceil(x1) - m_bg.origin_x) + 3;
+    m_bg.height = static_cast<int64_t>(std::ceil(y1) - m_bg.origin_y) + 3;
+    m_bg.to_atlas = torch::matmul(translation(-m_bg.origin_x, -m_bg.origin_y), to_ref)
+                        .to(torch::kFloat32);
+    m_bg.learn_warp = !d.static_camera;
+    m_bg.warp = torch::zeros({T, 2, gh, gw});
+
+    torch::NoGradGuard no_grad;
+    const auto sharpness = (d.radius + 0.5).pow(-4.0).unsqueeze(1);  // [T,1,H,W]
+    m_two_layers = d.has_subject && d.mask.defined();
+    torch::Tensor bg_weight = sharpness;
+    if (m_two_layers) {
+        bg_weight = sharpness * (1.0 - d.mask).clamp_min(1e-3);
+        // Foreground mapping: translate so that each frame's subject centroid lands on one point.
+        auto m = d.mask.squeeze(1);  // [T,H,W]
+        auto mass = m.sum({1, 2}).clamp_min(1e-6);
+        auto cx = (m * grid[1]).sum({1, 2}) / mass, cy = (m * grid[0]).sum({1, 2}) / mass;
+        // Frames without a subject keep the nearest frame's centre.
+        std::vector<double> vx(T), vy(T);
+        int64_t last = -1;
+        for (int64_t t = 0; t < T; ++t) {
+            if (mass[t].item<double>() > 4.0) last = t;
+            vx[t] = cx[last < 0 ? t : last].item<double>();
+            vy[t] = cy[last < 0 ? t : last].item<double>();
+        }
+        // Extent of the subject in stabilised coordinates, plus a margin for its motion.
+        double fx0 = 1e30, fy0 = 1e30, fx1 = -1e30, fy1 = -1e30;
+        for (int64_t t = 0; t < T; ++t) {
+            auto nz = torch::nonzero(m[t] > 0.05);
+            if (nz.size(0) == 0) continue;
+            auto mn = std::get<0>(nz.min(0)), mx = std::get<0>(nz.max(0));
+            fy0 = std::min(fy0, mn[0].item<double>() - vy[t]);
+            fx0 = std::min(fx0, mn[1].item<double>() - vx[t]);
+            fy1 = std::max(fy1, mx[0].item<double>() - vy[t]);
+            fx1 = std::max(fx1, mx[1].item<double>() - vx[t]);
+        }
+        if (fx0 > fx1) fx0 = -W / 4.0, fx1 = W / 4.0, fy0 = -H / 4.0, fy1 = H / 4.0;
+        const double margin = 12;
+        m_fg.origin_x = std::floor(fx0) - margin;
+        m_fg.origin_y = std::floor(fy0) - margin;
+        m_fg.width = static_cast<int64_t>(std::ceil(fx1) - m_fg.origin_x + margin) + 1;
+        m_fg.height = static_cast<int64_t>(std::ceil(fy1) - m_fg.origin_y + margin) + 1;
+        std::vector<torch::Tensor> mats;
+        for (int64_t t = 0; t < T; ++t)
+            mats.push_back(translation(-vx[t] - m_fg.origin_x, -vy[t] - m_fg.origin_y));
+        m_fg.to_atlas = torch::stack(mats).to(torch::kFloat32);
+        m_fg.learn_warp = true;
+        m_fg.warp = torch::zeros({T, 2, gh, gw});
+        const auto fg_weight = sharpness * d.mask.clamp_min(1e-3);
+        refine_alignment(m_fg, fg_weight, d.mask, true);
+        init_levels(m_fg, fuse(m_fg, fg_weight));
+        auto m4 = F::avg_pool2d(d.mask, F::AvgPool2dFuncOptions(4).ceil_mode(true));
+        m_alpha_logit = torch::logit(m4.clamp(0.05, 0.95));
+    }
+    refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false);
+    init_levels(m_bg, fuse(m_bg, bg_weight));
+}
+
+void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
+                                 bool affine) {
+    const int64_t T = m_data.frames, H = m_data.height, W = m_data.width;
+    auto grey = [&](const torch::Tensor& rgb) {  // [3,H,W] linear → sRGB luma, CV_32F
+        auto l = srgb_encode(rgb);
+        l = (0.299 * l[0] + 0.587 * l[1] + 0.114 * l[2]).contiguous();
+        return cv::Mat(int(H), int(W), CV_32F, l.data_ptr<float>()).clone();
+    };
+    for (int round = 0; round < m_opts.align_rounds; ++round) {
+        auto fused = fuse(a, weight).unsqueeze(0);
+        std::vector<torch::Tensor> mats;
+        for (int64_t t = 0; t < T; ++t) {
+            auto m = a.to_atlas[t].to(torch::kFloat64);
+            auto p = torch::matmul(a.to_atlas[t], m_pixels.t());
+            auto px = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, H, W, 2});
+            auto render = sample_bicubic(fused, to_grid(a, px))[0];
+            auto blurred = lens_blur(render.contiguous(), m_data.radius[t].contiguous());
+            cv::Mat tmpl = grey(m_data.input[t]), moving = grey(blurred);
+            auto rmask = (region[t][0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
+            cv::Mat mask(int(H), int(W), CV_8U, rmask.data_ptr<uint8_t>());
+            if (cv::countNonZero(mask) < 64) {
+                mats.push_back(m);
+                continue;
+            }
+            // Translation only: the homography's shape is right, its drift is what accumulates;
+            // more degrees of freedom let ECC wander on heavily blurred frames.
+            cv::Mat warp = cv::Mat::eye(2, 3, CV_32F);
+            bool ok = true;
+            try {
+                cv::findTransformECC(tmpl, moving, warp, cv::MOTION_TRANSLATION,
+                                     cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 60, 1e-5),
+                                     mask, 5);
+            } catch (const cv::Exception&) {
+                ok = false;  // no convergence: keep the mapping
+            }
+            auto w = torch::eye(3, torch::kFloat64);
+            for (int r = 0; r < warp.rows; ++r)
+                for (int c = 0; c < 3; ++c) w[r][c] = double(warp.at<float>(r, c));
+            // ECC maps template (input frame) pixels to the render's: frame x ↦ render w·x,
+            // and the render pixel y sits at atlas m·y. Refuse corrections over 4 px.
+            double worst = 0;
+            for (double cy : {0.0, double(H - 1)})
+                for (double cx : {0.0, double(W - 1)}) {
+                    auto q = torch::matmul(w, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+                    worst = std::max(worst, std::hypot(q[0].item<double>() / q[2].item<double>() - cx,
+                                                       q[1].item<double>() / q[2].item<double>() - cy));
+                }
+            if (std::getenv("REFOCUS_DEBUG_ALIGN"))
+                std::fprintf(stderr, "align round %d frame %lld: %s, corner shift %.2f px\n", round,
+                             (long long)t, ok ? "ok" : "failed", worst);
+            mats.push_back(ok && worst < 4.0 ? torch::matmul(m, w) : m);
+        }
+        a.to_atlas = torch::stack(mats).to(torch::kFloat32);
+    }
+}
+
+torch::Tensor FastModel::map_coords(const Atlas& a, const std::vector<int64_t>& frames) const {
+    const int64_t H = m_data.height, W = m_data.width, B = frames.size();
+    auto idx = torch::tensor(frames, torch::kLong);
+    auto m = a.to_atlas.index_select(0, idx);                  // [B,3,3]
+    auto p = torch::matmul(m, m_pixels.t());                   // [B,3,HW]
+    auto xy = p.narrow(1, 0, 2) / p.narrow(1, 2, 1);           // [B,2,HW]
+    auto px = xy.view({B, 2, H, W});
+    if (a.learn_warp || a.warp.requires_grad())
+        px = px + upsample(a.warp.index_select(0, idx), H, W, true);
+    return px.permute({0, 2, 3, 1});                           // [B,H,W,2]
+}
+
+torch::Tensor FastModel::to_grid(const Atlas& a, const torch::Tensor& px) const {
+    // grid_sample with align_corners=false: pixel i has centre at (2i + 1)/size − 1.
+    auto scale = torch::tensor({2.0f / a.width, 2.0f / a.height});
+    return (px + 0.5) * scale - 1.0;
+}
+
+torch::Tensor FastModel::compose(const Atlas& a) const {
+    torch::Tensor sum;
+    for (const auto& l : a.levels) {
+        auto up = upsample(l, a.height, a.width);
+        sum = sum.defined() ? sum + up : up;
+    }
+    return sum;
+}
+
+torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight) const {
+    // For every frame, pull its pixels into the atlas through the inverse mapping and
+    // accumulate them with their weight (sharpest observations dominate).
+    const int64_t T = m_data.frames;
+    auto ys = torch::arange(a.height, torch::kFloat32), xs = torch::arange(a.width, torch::kFloat32);
+    auto g = torch::meshgrid({ys, xs}, "ij");
+    auto pts = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({a.height * a.width})}, 0);
+    auto acc = torch::zeros({3, a.height, a.width}), wsum = torch::zeros({1, a.height, a.width});
+    const auto scale = torch::tensor({2.0f / m_data.width, 2.0f / m_data.height});
+    for (int64_t t = 0; t < T; ++t) {
+        auto inv = torch::inverse(a.to_atlas[t].to(torch::kFloat64)).to(torch::kFloat32);
+        auto p = torch::matmul(inv, pts);
+        auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, a.height, a.width, 2});
+        auto grid = (xy + 0.5) * scale - 1.0;
+        auto opts = F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kZeros).align_corners(false);
+        auto inside = F::grid_sample(torch::ones({1, 1, m_data.height, m_data.width}), grid, opts)[0];
+        auto col = sample_bicubic(m_data.input[t].unsqueeze(0), grid)[0];
+        auto w = F::grid_sample(weight[t].unsqueeze(0), grid, opts)[0] * (inside > 0.999);
+        acc += col * w;
+        wsum += w;
+    }
+    auto mean = acc.sum({1, 2}, true) / wsum.sum().clamp_min(1e-12);
+    return torch::where(wsum > 1e-8, acc / wsum.clamp_min(1e-8), mean.expand_as(acc));
+}
+
+void FastModel::init_levels(Atlas& a, const torch::Tensor& fused) {
+    a.levels.clear();
+    for (int l = 0; l < m_opts.levels; ++l) {
+        const int shift = m_opts.levels - 1 - l;
+        int64_t h = std::max<int64_t>(1, a.height >> shift), w = std::max<int64_t>(1, a.width >> shift);
+        a.levels.push_back(torch::zeros({1, 3, h, w}));
+    }
+    a.levels.back() = fused.unsqueeze(0).clone();
+    for (auto& l : a.levels) l.set_requires_grad(true);
+    if (a.learn_warp) a.warp.set_requires_grad(true);
+}
+
+std::vector<ParamGroup> FastModel::param_groups() {
+    std::vector<ParamGroup> g;
+    ParamGroup atlas{{}, m_opts.lr_atlas};
+    for (auto& l : m_bg.levels) atlas.params.push_back(l);
+    if (m_two_layers)
+        for (auto& l : m_fg.levels) atlas.params.push_back(l);
+    g.push_back(atlas);
+    ParamGroup warp{{}, m_opts.lr_warp};
+    if (m_bg.learn_warp) warp.params.push_back(m_bg.warp);
+    if (m_two_layers) warp.params.push_back(m_fg.warp);
+    if (!warp.params.empty()) g.push_back(warp);
+    if (m_two_layers) g.push_back(ParamGroup{{m_alpha_logit.set_requires_grad(true)}, m_opts.lr_alpha});
+    return g;
+}
+
+Layers FastModel::render(const std::vector<int64_t>& frames) {
+    const int64_t B = frames.size(), H = m_data.height, W = m_data.width;
+    Layers out;
+    out.uv_bg = to_grid(m_bg, map_coords(m_bg, frames));
+    out.bg = sample_bicubic(compose(m_bg).expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
+    if (!m_two_layers) {
+        out.sharp = out.bg;
+        return out;
+    }
+    out.uv_fg = to_grid(m_fg, map_coords(m_fg, frames));
+    out.fg = sample_bicubic(compose(m_fg).expand({B, 3, m_fg.height, m_fg.width}), out.uv_fg);
+    auto idx = torch::tensor(frames, torch::kLong);
+    out.alpha = torch::sigmoid(upsample(m_alpha_logit.index_select(0, idx), H, W));
+    out.sharp = out.alpha * out.fg + (1.0 - out.alpha) * out.bg;  // paper eq. 1
+    return out;
+}
+
+torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>& frames,
+                                int64_t step, LossTerms& terms) {
+    auto tv = tv_l1(compose(m_bg));
+    if (m_two_layers) tv = tv + tv_l1(compose(m_fg));
+    torch::Tensor total = m_opts.w_tv * tv;
+    terms["tv"] = tv.item<double>();
+    auto idx = torch::tensor(frames, torch::kLong);
+    torch::Tensor warp_reg = torch::zeros({});
+    for (Atlas* a : {&m_bg, &m_fg}) {
+        if (!a->warp.requires_grad()) continue;
+        auto w = a->warp.index_select(0, idx);
+        auto dx = w.narrow(3, 1, w.size(3) - 1) - w.narrow(3, 0, w.size(3) - 1);
+        auto dy = w.narrow(2, 1, w.size(2) - 1) - w.narrow(2, 0, w.size(2) - 1);
+        warp_reg = warp_reg + dx.pow(2).mean() + dy.pow(2).mean() + 1e-3 * w.pow(2).mean();
+    }
+    total = total + m_opts.w_warp * warp_reg;
+    terms["warp"] = warp_reg.item<double>();
+    if (m_two_layers) {
+        // Mask bootstrap (Layered Neural Atlases §3.3): pull α toward the masks early, then let
+        // the reconstruction decide the soft edge.
+        const double decay = std::pow(0.5, double(step) / m_opts.bootstrap_halflife);
+        auto boot = (layers.alpha - m_data.mask.index_select(0, idx)).abs().mean();
+        total = total + m_opts.w_bootstrap * decay * boot;
+        terms["bootstrap"] = boot.item<double>();
+    }
+    return total;
+}
+
+torch::Tensor FastModel::atlas_bg() { return compose(m_bg).detach()[0]; }
+torch::Tensor FastModel::atlas_fg() {
+    return m_two_layers ? compose(m_fg).detach()[0] : torch::Tensor();
+}
+
+void FastModel::set_atlas(Atlas& a, const torch::Tensor& rgb) {
+    if (rgb.dim() != 3 || rgb.size(0) != 3 || rgb.size(1) != a.height || rgb.size(2) != a.width)
+        throw Error("atlas image must be 3x" + std::to_string(a.height) + "x" +
+                    std::to_string(a.width) + " (channels x height x width)");
+    torch::NoGradGuard g;
+    torch::Tensor coarse = torch::zeros({1, 3, a.height, a.width});
+    for (size_t l = 0; l + 1 < a.levels.size(); ++l) coarse += upsample(a.levels[l], a.height, a.width);
+    a.levels.back().copy_(rgb.unsqueeze(0) - coarse);
+}
+void FastModel::set_atlas_bg(const torch::Tensor& rgb) { set_atlas(m_bg, rgb); }
+void FastModel::set_atlas_fg(const torch::Tensor& rgb) {
+    if (!m_two_layers) throw Error("this fit has one layer: there is no foreground atlas");
+    set_atlas(m_fg, rgb);
+}
+
+std::map<std::string, torch::Tensor> FastModel::state() {
+    std::map<std::string, torch::Tensor> s;
+    for (size_t l = 0; l < m_bg.levels.size(); ++l) s["bg_level" + std::to_string(l)] = m_bg.levels[l];
+    s["bg_warp"] = m_bg.warp;
+    if (m_two_layers) {
+        for (size_t l = 0; l < m_fg.levels.size(); ++l) s["fg_level" + std::to_string(l)] = m_fg.levels[l];
+        s["fg_warp"] = m_fg.warp;
+        s["alpha_logit"] = m_alpha_logit;
+    }
+    return s;
+}
+
+void FastModel::load_state(const std::map<std::string, torch::Tensor>& s) {
+    torch::NoGradGuard g;
+    for (auto& [name, t] : state()) {
+        auto it = s.find(name);
+        if (it == s.end()) throw Error("checkpoint lacks tensor '" + name + "'");
+        if (!it->second.sizes().equals(t.sizes()))
+            throw Error("checkpoint tensor '" + name + "' has shape " +
+                        c10::str(it->second.sizes()) + ", the model expects " + c10::str(t.sizes()));
+        t.copy_(it->second);
+    }
+}
+
+}  // namespace refocus

@@ -1,0 +1,74 @@
+#pragma once
+// The `fast` preset: paper eq. 1 on explicit representations that train in minutes on a CPU.
+//   Background mapping M_b: the per-frame camera homography (from prepare) into a reference
+//     atlas, plus a coarse residual warp grid per frame (learned only when the camera moves).
+//   Foreground mapping M_f: per-frame translation that stabilises the subject (mask centroid)
+//     plus a coarse residual warp grid per frame.
+//   Alpha: per-frame matte at quarter resolution (logits), bootstrapped from the masks.
+//   Atlases: multi-resolution textures A = Σ_l up(T_l) (coarse-to-fine for free: a coarse level
+//     moves many atlas pixels at once), with total variation.
+// Initialisation fuses the input frames into the atlases weighted toward the frames that saw
+// each atlas pixel sharpest (weight (r + ½)^−4), which is where multi-frame deblurring starts.
+#include "fit/fit_model.h"
+
+namespace refocus {
+
+struct FastModelOptions {
+    int levels = 4;             // atlas pyramid levels
+    int warp_cell_px = 32;      // residual warp grid spacing
+    double lr_atlas = 0.01;
+    double lr_warp = 0.05;      // px per step (Adam)
+    double lr_alpha = 0.05;
+    double w_tv = 0.002;        // atlas TV weight
+    double w_warp = 0.01;       // residual warp smoothness
+    double w_bootstrap = 0.5;   // alpha to mask, halves every `bootstrap_halflife` steps
+    int bootstrap_halflife = 400;
+    int align_rounds = 2;       // ECC refinement rounds at initialisation (0: off)
+};
+
+class FastModel : public FitModel {
+public:
+    FastModel(const FitData& data, const FastModelOptions& opts);
+    std::string preset() const override { return "fast"; }
+    std::vector<ParamGroup> param_groups() override;
+    Layers render(const std::vector<int64_t>& frames) override;
+    torch::Tensor priors(const Layers& layers, const std::vector<int64_t>& frames, int64_t step,
+                         LossTerms& terms) override;
+    torch::Tensor atlas_bg() override;
+    torch::Tensor atlas_fg() override;
+    void set_atlas_bg(const torch::Tensor& rgb) override;
+    void set_atlas_fg(const torch::Tensor& rgb) override;
+    std::map<std::string, torch::Tensor> state() override;
+    void load_state(const std::map<std::string, torch::Tensor>& s) override;
+
+private:
+    struct Atlas {
+        int64_t width = 0, height = 0;
+        double origin_x = 0, origin_y = 0;  // atlas pixel (0,0) in mapped coordinates
+        std::vector<torch::Tensor> levels;  // [1,3,h_l,w_l], coarse → fine
+        torch::Tensor to_atlas;             // [T,3,3] float32: frame pixel → atlas pixel
+        torch::Tensor warp;                 // [T,2,gh,gw] residual, px
+        bool learn_warp = false;
+    };
+    torch::Tensor compose(const Atlas& a) const;                           // [1,3,Ha,Wa]
+    torch::Tensor map_coords(const Atlas& a, const std::vector<int64_t>& frames) const;  // [B,H,W,2] px
+    torch::Tensor to_grid(const Atlas& a, const torch::Tensor& px) const;  // → [-1,1]
+    void init_levels(Atlas& a, const torch::Tensor& fused);
+    torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight) const;  // sharpest-weighted
+    void set_atlas(Atlas& a, const torch::Tensor& rgb);
+    // Refines each frame's mapping by ECC image alignment (Evangelidis & Psarakis 2008) of the
+    // reblurred fused atlas against the input frame, inside `region` ([T,1,H,W] > 0.5), then
+    // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp
+    // atlas shifted by a pixel scores worse than the blurred input.
+    void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
+                          bool affine);
+
+    const FitData& m_data;
+    FastModelOptions m_opts;
+    torch::Tensor m_pixels;  // [H*W,3] homogeneous pixel centres
+    Atlas m_bg, m_fg;
+    bool m_two_layers = false;
+    torch::Tensor m_alpha_logit;  // [T,1,H/4,W/4]
+};
+
+}  // namespace refocus

@@ -1,0 +1,326 @@
+#include "fit/fit_engine.h"
+
+#include <torch/optim.h>
+#include <torch/serialize.h>
+#include <torch/torch.h>
+
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <sstream>
+
+#include "fit/fast_model.h"
+#include "fit/losses.h"
+#include "fit/perframe.h"
+#include "util/error.h"
+
+namespace refocus {
+
+using Clock = std::chrono::steady_clock;
+
+std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& data, uint64_t seed) {
+    torch::manual_seed(seed);
+    if (preset == "fast") return std::make_unique<FastModel>(data, FastModelOptions{});
+    if (preset == "perframe") return nullptr;  // no atlas model: see step_perframe()
+    throw Error("unknown preset '" + preset + "' (use fast, paper or perframe)");
+}
+
+FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
+    : m_data(std::move(data)), m_opts(opts), m_rng(opts.seed) {
+    if (!m_data || m_data->frames <= 0) throw Error("fit: the clip has no frames");
+    if (m_opts.minutes <= 0 && m_opts.iters <= 0)
+        throw Error("fit: give a budget (--minutes M or --iters N)");
+    if (!torch::isfinite(m_data->input).all().item<bool>())
+        throw Error("fit: the input frames contain NaN/Inf");
+    if (!torch::isfinite(m_data->radius).all().item<bool>() ||
+        (m_data->radius < 0).any().item<bool>())
+        throw Error("fit: the radius maps contain NaN/Inf or negative values");
+    {
+        torch::NoGradGuard g;
+        m_target = srgb_encode(m_data->input);
+    }
+    m_model = make_model(m_opts.preset, *m_data, m_opts.seed);
+    if (m_model) {
+        make_optimizer();
+    } else {
+        m_perframe = m_data->input.clone();
+        m_perframe_done.assign(m_data->frames, false);
+    }
+}
+
+FitEngine::~FitEngine() = default;
+
+void FitEngine::make_optimizer() {
+    std::vector<torch::optim::OptimizerParamGroup> groups;
+    m_base_lr.clear();
+    for (auto& g : m_model->param_groups()) {
+        groups.emplace_back(g.params, std::make_unique<torch::optim::AdamOptions>(g.lr));
+        m_base_lr.push_back(g.lr);
+    }
+    m_optim = std::make_unique<torch::optim::Adam>(groups, torch::optim::AdamOptions(1e-3));
+}
+
+double FitEngine::budget_fraction() const {
+    double f = 0.0;
+    if (m_opts.iters > 0) f = std::max(f, double(m_step) / m_opts.iters);
+    if (m_opts.minutes > 0) f = std::max(f, m_elapsed / (60.0 * m_opts.minutes));
+    return std::min(f, 1.0);
+}
+
+bool FitEngine::done() const {
+    if (m_stop) return true;
+    if (!m_model) return m_step >= m_data->frames;
+    return budget_fraction() >= 1.0;
+}
+
+std::vector<int64_t> FitEngine::next_batch() {
+    // Epochs over a shuffled permutation: every frame is seen equally often.
+    std::vector<int64_t> b;
+    const int n = std::min<int>(m_opts.batch, m_data->frames);
+    while (static_cast<int>(b.size()) < n) {
+        if (m_perm_pos >= m_perm.size()) {
+            m_perm.resize(m_data->frames);
+            for (int64_t i = 0; i < m_data->frames; ++i) m_perm[i] = i;
+            std::shuffle(m_perm.begin(), m_perm.end(), m_rng);
+            m_perm_pos = 0;
+        }
+        b.push_back(m_perm[m_perm_pos++]);
+    }
+    return b;
+}
+
+torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& frames) {
+    std::vector<torch::Tensor> out;
+    for (size_t b = 0; b < frames.size(); ++b) {
+        auto r = m_data->radius[frames[b]];
+        if (!L.fg.defined()) {
+            out.push_back(lens_blur(L.sharp[b], r, m_opts.blur));  // paper eq. 3
+            continue;
+        }
+        // Layered reblur, one 7-channel pass: [α·F, α, B] share the taps.
+        auto a = L.alpha[b];
+        auto stack = torch::cat({a * L.fg[b], a, L.bg[b]}, 0);
+        auto bl = lens_blur(stack, r, m_opts.blur);
+        out.push_back(bl.narrow(0, 0, 3) + (1.0 - bl.narrow(0, 3, 1)) * bl.narrow(0, 4, 3));
+    }
+    return torch::stack(out);
+}
+
+void FitEngine::step_perframe() {
+    // The baseline: non-blind MAP deconvolution with a TV prior, one frame per step.
+    const int64_t t = m_step;
+    TvDeconvOptions o;
+    o.blur = m_opts.blur;
+    auto u = deconvolve_tv(m_data->input[t], m_data->radius[t], o);
+    std::lock_guard<std::mutex> lock(m_model_mutex);
+    m_perframe[t].copy_(u);
+    m_perframe_done[t] = true;
+}
+
+void FitEngine::step() {
+    if (done()) return;
+    const auto t0 = Clock::now();
+    LossTerms terms;
+    double loss_v = 0.0, psnr_v = 0.0;
+    if (!m_model) {
+        step_perframe();
+        torch::NoGradGuard g;
+        std::vector<int64_t> f{m_step};
+        Layers L;
+        L.sharp = m_perframe[m_step].unsqueeze(0);
+        auto rb = srgb_encode(reblur(L, f));
+        double mse = (rb - m_target[m_step].unsqueeze(0)).pow(2).mean().item<double>();
+        psnr_v = 10 * std::log10(1.0 / std::max(mse, 1e-12));
+        terms["reco_mse"] = mse;
+        loss_v = mse;
+    } else {
+        std::lock_guard<std::mutex> lock(m_model_mutex);
+        // Learning rate: cosine decay to 10% over the budget.
+        const double frac = budget_fraction();
+        const double factor = 0.1 + 0.9 * 0.5 * (1.0 + std::cos(M_PI * frac));
+        auto& groups = m_optim->param_groups();
+        for (size_t i = 0; i < groups.size(); ++i)
+            static_cast<torch::optim::AdamOptions&>(groups[i].options()).lr(m_base_lr[i] * factor);
+
+        auto frames = next_batch();
+        Layers L = m_model->render(frames);
+        auto rb = srgb_encode(reblur(L, frames));
+        auto idx = torch::tensor(frames, torch::kLong);
+        auto target = m_target.index_select(0, idx);
+        auto l1 = (rb - target).abs().mean();
+        auto ms = ms_ssim_loss(rb, target);
+        auto reco = (1.0 - m_opts.ms_ssim_share) * l1 + m_opts.ms_ssim_share * ms;
+        auto loss = m_opts.w_reco * reco + m_model->priors(L, frames, m_step, terms);
+        if (!torch::isfinite(loss).item<bool>())
+            throw Error("fit: the loss became NaN/Inf at step " + std::to_string(m_step));
+        m_optim->zero_grad();
+        loss.backward();
+        m_optim->step();
+        terms["l1"] = l1.item<double>();
+        terms["ms_ssim"] = 1.0 - ms.item<double>();
+        loss_v = loss.item<double>();
+        double mse = (rb.detach() - target).pow(2).mean().item<double>();
+        psnr_v = 10 * std::log10(1.0 / std::max(mse, 1e-12));
+    }
+    ++m_step;
+    m_elapsed += std::chrono::duration<double>(Clock::now() - t0).count();
+
+    std::lock_guard<std::mutex> lock(m_snap_mutex);
+    m_snap.step = m_step;
+    m_snap.loss = loss_v;
+    m_snap.terms = terms;
+    m_snap.reblur_psnr = psnr_v;
+    m_snap.elapsed_s = m_elapsed;
+    const double frac = m_model ? budget_fraction() : double(m_step) / m_data->frames;
+    m_snap.progress = frac;
+    m_snap.eta_s = frac > 0 ? m_elapsed * (1.0 - frac) / frac : -1.0;
+    m_snap.atlas_version++;
+    m_snap.status = done() ? (m_stop ? "stopped" : "done") : (m_paused ? "paused" : "running");
+}
+
+FitSnapshot FitEngine::snapshot() const {
+    std::lock_guard<std::mutex> lock(m_snap_mutex);
+    return m_snap;
+}
+
+Layers FitEngine::render_frame(int t) {
+    if (t < 0 || t >= m_data->frames) throw Error("frame " + std::to_string(t) + " out of range");
+    torch::NoGradGuard g;
+    std::lock_guard<std::mutex> lock(m_model_mutex);
+    if (!m_model) {
+        Layers L;
+        L.sharp = m_perframe[t].unsqueeze(0).clone();
+        L.bg = L.sharp;
+        return L;
+    }
+    return m_model->render({t});
+}
+
+// ---------------------------------------------------------------- checkpoints
+namespace {
+constexpr int kCheckpointVersion = 1;
+}
+
+bool FitEngine::has_checkpoint(const fs::path& dir) { return fs::exists(dir / "checkpoint.json"); }
+
+void FitEngine::save_checkpoint(const fs::path& dir) {
+    fs::create_directories(dir);
+    const std::string pt_name = "checkpoint_" + std::to_string(m_step) + ".pt";
+    const fs::path pt = dir / pt_name;
+    {
+        std::lock_guard<std::mutex> lock(m_model_mutex);
+        torch::serialize::OutputArchive ar;
+        if (m_model) {
+            for (auto& [name, t] : m_model->state()) ar.write("model/" + name, t.detach());
+            torch::serialize::OutputArchive opt;
+            m_optim->save(opt);
+            ar.write("optimizer", opt);
+        } else {
+            ar.write("perframe", m_perframe);
+        }
+        fs::path tmp = temp_sibling(pt);
+        try {
+            ar.save_to(tmp.string());
+        } catch (const std::exception& e) {
+            std::error_code ec;
+            fs::remove(tmp, ec);
+            throw Error(file_error(pt.string(), std::string("cannot write checkpoint: ") + e.what()));
+        }
+        commit_temp(tmp, pt);
+    }
+    std::ostringstream rng;
+    rng << m_rng;
+    nlohmann::json j = {{"version", kCheckpointVersion},
+                        {"preset", m_opts.preset},
+                        {"frames", m_data->frames},
+                        {"height", m_data->height},
+                        {"width", m_data->width},
+                        {"two_layers", m_data->has_subject},
+                        {"step", m_step},
+                        {"elapsed_s", m_elapsed},
+                        {"seed", m_opts.seed},
+                        {"rng", rng.str()},
+                        {"perm", m_perm},
+                        {"perm_pos", m_perm_pos},
+                        {"perframe_done", m_perframe_done},
+                        {"tensors", pt_name}};
+    write_file_atomic(dir / "checkpoint.json", j.dump(1));
+    // Older tensor files are no longer referenced.
+    for (const auto& e : fs::directory_iterator(dir)) {
+        const std::string n = e.path().filename().string();
+        if (n.rfind("checkpoint_", 0) == 0 && n != pt_name && e.path().extension() == ".pt") {
+            std::error_code ec;
+            fs::remove(e.path(), ec);
+        }
+    }
+    m_last_ckpt = m_elapsed;
+}
+
+bool FitEngine::maybe_checkpoint(const fs::path& dir) {
+    if (m_elapsed - m_last_ckpt < m_opts.checkpoint_seconds) return false;
+    save_checkpoint(dir);
+    return true;
+}
+
+void FitEngine::load_checkpoint(const fs::path& dir) {
+    const fs::path jf = dir / "checkpoint.json";
+    nlohmann::json j;
+    try {
+        j = nlohmann::json::parse(read_text_file(jf));
+    } catch (const nlohmann::json::exception& e) {
+        throw Error(file_error(jf.string(), std::string("corrupt checkpoint: ") + e.what()));
+    }
+    auto expect = [&](const char* key, const nlohmann::json& want) {
+        if (!j.contains(key) || j[key] != want)
+            throw Error(file_error(jf.string(), std::string("checkpoint field '") + key + "' is " +
+                                                    (j.contains(key) ? j[key].dump() : "missing") +
+                                                    ", this fit has " + want.dump()));
+    };
+    if (j.value("version", 0) > kCheckpointVersion)
+        throw Error(file_error(jf.string(), "checkpoint from a newer Refocus"));
+    expect("preset", m_opts.preset);
+    expect("frames", m_data->frames);
+    expect("height", m_data->height);
+    expect("width", m_data->width);
+    const fs::path pt = dir / j.value("tensors", std::string());
+    torch::serialize::InputArchive ar;
+    try {
+        ar.load_from(pt.string());
+    } catch (const std::exception& e) {
+        throw Error(file_error(pt.string(), "cannot read checkpoint tensors (truncated?)"));
+    }
+    std::lock_guard<std::mutex> lock(m_model_mutex);
+    if (m_model) {
+        std::map<std::string, torch::Tensor> s;
+        for (auto& [name, t] : m_model->state()) {
+            torch::Tensor v;
+            if (!ar.try_read("model/" + name, v))
+                throw Error(file_error(pt.string(), "checkpoint lacks tensor '" + name + "'"));
+            s[name] = v;
+        }
+        m_model->load_state(s);
+        torch::serialize::InputArchive opt;
+        ar.read("optimizer", opt);
+        m_optim->load(opt);
+    } else {
+        torch::Tensor v;
+        ar.read("perframe", v);
+        if (!v.sizes().equals(m_perframe.sizes()))
+            throw Error(file_error(pt.string(), "perframe tensor has the wrong shape"));
+        m_perframe.copy_(v);
+        m_perframe_done = j.at("perframe_done").get<std::vector<bool>>();
+    }
+    m_step = j.at("step").get<int64_t>();
+    m_elapsed = j.at("elapsed_s").get<double>();
+    m_last_ckpt = m_elapsed;
+    std::istringstream rng(j.at("rng").get<std::string>());
+    rng >> m_rng;
+    m_perm = j.at("perm").get<std::vector<int64_t>>();
+    m_perm_pos = j.at("perm_pos").get<size_t>();
+    std::lock_guard<std::mutex> l2(m_snap_mutex);
+    m_snap.step = m_step;
+    m_snap.elapsed_s = m_elapsed;
+    m_snap.atlas_version++;
+}
+
+}  // namespace refocus

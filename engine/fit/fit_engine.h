@@ -1,0 +1,106 @@
+#pragma once
+// The fit engine: one object driven by step(), shared by the CLI, the studio and the tests.
+// It minimises  Σ_t ‖L(C_t, r_t) − I_t‖ + priors  (DESIGN.md "fit"; paper eq. 3 and 4) over a
+// FitModel, with a layered reblur: L(α·F) + (1 − L(α))·L(B), so that a blurred foreground edge
+// reveals the background the atlas holds behind it (DESIGN.md "Occlusion at depth edges").
+#include <atomic>
+#include <chrono>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "fit/fit_model.h"
+#include "ops/lens_blur.h"
+
+namespace torch::optim {
+class Optimizer;
+}
+
+namespace refocus {
+
+struct FitOptions {
+    std::string preset = "fast";  // fast | paper | perframe
+    double minutes = 0.0;          // time budget (0: none)
+    int64_t iters = 0;             // step budget (0: none); one of the two must be set
+    uint64_t seed = 1;
+    int batch = 2;                 // frames per step
+    double w_reco = 1.0;           // λ1 of paper eq. 4 (others live in the models)
+    double ms_ssim_share = 0.84;   // L_reco = 0.84·(1 − MS-SSIM) + 0.16·L1 (Zhao et al. 2016)
+    double checkpoint_seconds = 60.0;
+    LensBlurParams blur;           // the reblur kernel: paper's disk, β = 2
+};
+
+struct FitSnapshot {
+    int64_t step = 0;
+    double loss = 0.0;
+    LossTerms terms;
+    double reblur_psnr = 0.0;      // of the last batch, sRGB, dB
+    double elapsed_s = 0.0;        // training time (pauses excluded)
+    double eta_s = -1.0;           // -1 when unknown
+    double progress = 0.0;         // 0..1 of the budget
+    int64_t atlas_version = 0;     // bumps when the atlases change
+    std::string status = "idle";   // idle | running | paused | stopped | done
+};
+
+class FitEngine {
+public:
+    FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts);
+    ~FitEngine();
+
+    void step();              // one optimisation step (or one frame for `perframe`)
+    bool done() const;        // budget used up or stop requested
+    void request_stop() { m_stop = true; }
+    void set_paused(bool p) { m_paused = p; }
+    bool paused() const { return m_paused; }
+    FitSnapshot snapshot() const;
+
+    // Checkpoints: `dir`/checkpoint.json + checkpoint_<step>.pt, written atomically; the json is
+    // renamed last, so a kill at any moment leaves the previous checkpoint loadable.
+    void save_checkpoint(const fs::path& dir);
+    // Restores model, optimizer, step, elapsed time and sampling state. Throws if the checkpoint
+    // belongs to another preset or clip shape.
+    void load_checkpoint(const fs::path& dir);
+    static bool has_checkpoint(const fs::path& dir);
+    // Saves when checkpoint_seconds of training time passed since the last save.
+    bool maybe_checkpoint(const fs::path& dir);
+
+    // Inference (no gradients). Frame t's layers, its reblur, and the atlases.
+    Layers render_frame(int t);
+    torch::Tensor reblur(const Layers& layers, const std::vector<int64_t>& frames);  // [B,3,H,W]
+    FitModel& model() { return *m_model; }
+    const FitData& data() const { return *m_data; }
+    const FitOptions& options() const { return m_opts; }
+    std::mutex& model_mutex() { return m_model_mutex; }  // held during step() and renders
+
+private:
+    std::vector<int64_t> next_batch();
+    void make_optimizer();
+    double budget_fraction() const;
+    void step_perframe();
+
+    std::shared_ptr<FitData> m_data;
+    FitOptions m_opts;
+    std::unique_ptr<FitModel> m_model;
+    std::unique_ptr<torch::optim::Optimizer> m_optim;
+    std::vector<double> m_base_lr;
+    torch::Tensor m_target;     // [T,3,H,W] sRGB-encoded input
+    std::mt19937_64 m_rng;
+    std::vector<int64_t> m_perm;
+    size_t m_perm_pos = 0;
+    int64_t m_step = 0;
+    double m_elapsed = 0.0;
+    double m_last_ckpt = 0.0;
+    std::atomic<bool> m_stop{false}, m_paused{false};
+    mutable std::mutex m_snap_mutex;
+    std::mutex m_model_mutex;
+    FitSnapshot m_snap;
+    torch::Tensor m_perframe;   // [T,3,H,W] results of the perframe preset
+    std::vector<bool> m_perframe_done;
+};
+
+// "fast", "paper" or "perframe"; throws with the list otherwise.
+std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& data, uint64_t seed);
+
+}  // namespace refocus

@@ -1,0 +1,66 @@
+#pragma once
+// The representation a fit optimises (paper eq. 1): per-frame UV mappings into a background and
+// a foreground atlas, an alpha matte, and the atlases. Two presets implement it: `fast`
+// (explicit textures and warps, fast_model.h) and `paper` (MLP mappings + deep-image-prior CNN
+// atlases). The engine (fit_engine.h) owns the data, the reblur and the reconstruction loss;
+// models own their parameters and priors.
+#include <torch/types.h>
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "util/fs.h"
+
+namespace refocus {
+
+// Everything the fit knows about the clip. Tensors are float32 on the CPU.
+struct FitData {
+    int frames = 0, height = 0, width = 0;
+    torch::Tensor input;      // [T,3,H,W] linear light
+    torch::Tensor radius;     // [T,H,W] circle-of-confusion radius, px
+    torch::Tensor mask;       // [T,1,H,W] foreground in [0,1]; undefined: one layer
+    torch::Tensor to_ref;     // [T,3,3] float64 homography frame t → reference frame
+    bool static_camera = true;
+    bool has_subject = false;
+};
+
+// One rendered batch of frames. All [B,...].
+struct Layers {
+    torch::Tensor sharp;   // [B,3,H,W]  α·F + (1−α)·B   (paper eq. 1)
+    torch::Tensor bg;      // [B,3,H,W]  A_b(M_b(p))
+    torch::Tensor fg;      // [B,3,H,W]  A_f(M_f(p)), undefined with one layer
+    torch::Tensor alpha;   // [B,1,H,W]  undefined with one layer
+    torch::Tensor uv_bg;   // [B,H,W,2]  atlas coordinates in [-1,1] (grid_sample convention)
+    torch::Tensor uv_fg;   // [B,H,W,2]  undefined with one layer
+};
+
+using LossTerms = std::map<std::string, double>;
+
+struct ParamGroup {
+    std::vector<torch::Tensor> params;
+    double lr = 1e-3;
+};
+
+class FitModel {
+public:
+    virtual ~FitModel() = default;
+    virtual std::string preset() const = 0;
+    virtual std::vector<ParamGroup> param_groups() = 0;
+    virtual Layers render(const std::vector<int64_t>& frames) = 0;
+    // Priors of paper eq. 4 that the model owns (sparsity, rigidity, flow, TV, mask bootstrap),
+    // weighted, summed; each term's value is recorded in `terms`.
+    virtual torch::Tensor priors(const Layers& layers, const std::vector<int64_t>& frames,
+                                 int64_t step, LossTerms& terms) = 0;
+    // The atlases as images for display, export and editing: [3,Ha,Wa] (fg undefined with one
+    // layer). set_* replaces the atlas content (imported repaint) keeping the mapping.
+    virtual torch::Tensor atlas_bg() = 0;
+    virtual torch::Tensor atlas_fg() = 0;
+    virtual void set_atlas_bg(const torch::Tensor& rgb) = 0;
+    virtual void set_atlas_fg(const torch::Tensor& rgb) = 0;
+    // Named tensors that fully determine the model (for checkpoints).
+    virtual std::map<std::string, torch::Tensor> state() = 0;
+    virtual void load_state(const std::map<std::string, torch::Tensor>& s) = 0;
+};
+
+}  // namespace refocus

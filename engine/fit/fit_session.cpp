@@ -1,0 +1,169 @@
+#include "fit/fit_session.h"
+
+#include <torch/torch.h>
+
+#include "fit/tensor_image.h"
+#include "io/clip.h"
+#include "io/image_file.h"
+#include "util/error.h"
+
+namespace refocus {
+
+using nlohmann::json;
+
+fs::path fit_dir(const Project& project) { return project.dir / "fit"; }
+
+FitSettings read_fit_settings(const Project& p) {
+    FitSettings s;
+    if (!p.sections.contains("fit")) return s;
+    const json& f = p.sections.at("fit");
+    const std::string label = p.project_file().string();
+    try {
+        s.fit.preset = f.value("preset", s.fit.preset);
+        s.fit.seed = f.value("seed", s.fit.seed);
+        s.fit.minutes = f.value("minutes", 0.0);
+        s.fit.iters = f.value("iters", int64_t(0));
+        s.fit.batch = f.value("batch", s.fit.batch);
+        s.setup.coc_path = f.value("coc", std::string());
+        s.setup.mask_path = f.value("mask", std::string());
+    } catch (const json::exception& e) {
+        throw Error(file_error(label, std::string("malformed 'fit' section: ") + e.what()));
+    }
+    // Relative inputs are stored relative to the project folder.
+    for (std::string* path : {&s.setup.coc_path, &s.setup.mask_path})
+        if (!path->empty() && fs::path(*path).is_relative()) *path = (p.dir / *path).string();
+    return s;
+}
+
+void write_fit_settings(Project& p, const FitSettings& s, const FitSnapshot* snap) {
+    auto rel = [&](const std::string& path) -> std::string {
+        if (path.empty()) return path;
+        fs::path r = fs::absolute(path).lexically_relative(fs::absolute(p.dir));
+        return r.empty() ? path : r.string();
+    };
+    json f = {{"preset", s.fit.preset}, {"seed", s.fit.seed},     {"minutes", s.fit.minutes},
+              {"iters", s.fit.iters},   {"batch", s.fit.batch},   {"coc", rel(s.setup.coc_path)},
+              {"mask", rel(s.setup.mask_path)}, {"checkpoint", "fit/checkpoint.json"}};
+    if (snap)
+        f["status"] = {{"state", snap->status},
+                       {"step", snap->step},
+                       {"elapsed_s", snap->elapsed_s},
+                       {"reblur_psnr", snap->reblur_psnr}};
+    p.sections["fit"] = f;
+    p.save();
+}
+
+std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
+    if (!FitEngine::has_checkpoint(fit_dir(p)))
+        throw Error(file_error(p.project_file().string(),
+                               "the project has not been fitted yet (run: refocus fit " +
+                                   p.dir.string() + " --minutes 5)"));
+    FitSettings s = read_fit_settings(p);
+    auto data = build_fit_data(p, s.setup, log);
+    if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.iters = 1;
+    auto engine = std::make_unique<FitEngine>(data, s.fit);
+    engine->load_checkpoint(fit_dir(p));
+    return engine;
+}
+
+ExportPass parse_export_pass(const std::string& n) {
+    if (n == "sharp") return ExportPass::Sharp;
+    if (n == "reblur") return ExportPass::Reblur;
+    if (n == "atlas") return ExportPass::Atlas;
+    if (n == "alpha") return ExportPass::Alpha;
+    if (n == "coc") return ExportPass::Coc;
+    if (n == "uv") return ExportPass::Uv;
+    throw Error("unknown pass '" + n + "' (use sharp, reblur, atlas, alpha, coc, uv or all)");
+}
+
+const char* export_pass_name(ExportPass p) {
+    switch (p) {
+        case ExportPass::Sharp: return "sharp";
+        case ExportPass::Reblur: return "reblur";
+        case ExportPass::Atlas: return "atlas";
+        case ExportPass::Alpha: return "alpha";
+        case ExportPass::Coc: return "coc";
+        case ExportPass::Uv: return "uv";
+    }
+    return "?";
+}
+
+std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
+                                     const std::string& out, double fps,
+                                     const std::function<bool(int, int)>& progress) {
+    const std::string name = export_pass_name(pass);
+    const bool data_pass = pass == ExportPass::Coc || pass == ExportPass::Uv;
+    if (data_pass && format != "exr" && format != "exr32")
+        throw Error("--what " + name + " holds values in px / atlas coordinates: use --format exr");
+
+    if (pass == ExportPass::Atlas) {
+        if (format == "mp4") throw Error("an atlas is an image: use --format png, tiff or exr");
+        std::error_code ec;
+        fs::create_directories(out, ec);
+        const PixelFormat pf = parse_pixel_format(format);
+        std::vector<std::string> files;
+        auto write = [&](const torch::Tensor& t, const std::string& layer) {
+            if (!t.defined()) return;
+            std::string path = (fs::path(out) / ("atlas_" + layer + "." + extension_of(pf))).string();
+            write_image_file(path, tensor_to_image(t.clamp_min(0)), pf);
+            files.push_back(path);
+        };
+        std::lock_guard<std::mutex> lock(engine.model_mutex());
+        if (engine.options().preset == "perframe")
+            throw Error("the perframe preset has no atlas (it deconvolves each frame alone)");
+        write(engine.model().atlas_bg(), "bg");
+        write(engine.model().atlas_fg(), "fg");
+        return files;
+    }
+
+    ClipWriteOptions wo;
+    wo.fps = fps;
+    wo.srgb_encode = !(pass == ExportPass::Alpha);
+    const ClipFormat cf = parse_clip_format(format == "exr" && data_pass ? "exr32" : format);
+    ClipWriter writer(out, name, cf, wo);
+    const FitData& d = engine.data();
+    for (int t = 0; t < d.frames; ++t) {
+        Layers L = engine.render_frame(t);
+        torch::Tensor img;
+        switch (pass) {
+            case ExportPass::Sharp: img = L.sharp[0]; break;
+            case ExportPass::Reblur: {
+                torch::NoGradGuard g;
+                img = engine.reblur(L, {t})[0];
+                break;
+            }
+            case ExportPass::Alpha:
+                img = L.alpha.defined() ? L.alpha[0] : torch::zeros({1, d.height, d.width});
+                if (cf == ClipFormat::Mp4) img = img.expand({3, d.height, d.width});
+                break;
+            case ExportPass::Coc: img = d.radius[t].unsqueeze(0); break;
+            case ExportPass::Uv: {
+                auto uv = L.uv_bg[0].permute({2, 0, 1});  // [2,H,W] in [-1,1]
+                if (L.uv_fg.defined()) uv = torch::cat({uv, L.uv_fg[0].permute({2, 0, 1})}, 0);
+                img = uv;
+                break;
+            }
+            case ExportPass::Atlas: break;
+        }
+        Image frame = tensor_to_image(img.contiguous());
+        if (frame.channels == 2 || frame.channels == 4) {
+            // UV: (u, v[, u_fg, v_fg]) → RGB(A)-compatible layouts: pad 2 → 3 channels.
+            if (frame.channels == 2) {
+                Image f3(frame.width, frame.height, 3);
+                for (size_t i = 0; i < size_t(frame.width) * frame.height; ++i) {
+                    f3.pixels[3 * i] = frame.pixels[2 * i];
+                    f3.pixels[3 * i + 1] = frame.pixels[2 * i + 1];
+                }
+                frame = f3;
+            }
+        }
+        writer.write(frame);
+        if (progress && !progress(t + 1, d.frames)) {
+            writer.cancel();
+            throw Error("export cancelled");
+        }
+    }
+    return writer.finish();
+}
+
+}  // namespace refocus

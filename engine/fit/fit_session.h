@@ -1,0 +1,40 @@
+#pragma once
+// A project's fit: its settings (project.json "fit" section), its checkpoint folder, and the
+// export of its results. Shared by `refocus fit`, `refocus export`, the studio and the benches.
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "fit/fit_engine.h"
+#include "fit/fit_setup.h"
+#include "project/project.h"
+
+namespace refocus {
+
+fs::path fit_dir(const Project& project);
+
+struct FitSettings {
+    FitOptions fit;
+    FitSetupOptions setup;
+};
+// Reads project.json's "fit" section (throws naming the field when it is malformed).
+FitSettings read_fit_settings(const Project& project);
+// Writes the settings and the engine's status into the "fit" section and saves project.json.
+void write_fit_settings(Project& project, const FitSettings& s, const FitSnapshot* snap);
+
+// Rebuilds the data and loads the latest checkpoint: a fitted project ready to render/export.
+std::unique_ptr<FitEngine> open_fitted(const Project& project, PrepareLog& log);
+
+// What `refocus export --what` can write.
+enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv };
+ExportPass parse_export_pass(const std::string& name);  // sharp|reblur|atlas|alpha|coc|uv
+const char* export_pass_name(ExportPass p);
+
+// Writes one pass. Sequences go to `out` (a folder) as <what>_%04d.<ext> from 0; mp4 to `out`
+// (a file). `progress(done, total)` may return false to cancel (what was written is removed).
+// Returns the files written.
+std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
+                                     const std::string& out, double fps,
+                                     const std::function<bool(int, int)>& progress = {});
+
+}  // namespace refocus
