@@ -417,13 +417,13 @@ TEST_CASE("synth flow moves the sharp frame onto the next one") {
 TEST_CASE("refocus synth writes every pass for each scene, deterministically") {
     auto list = test::cli("synth --scene list");
     CHECK(list.code == 0);
-    for (const char* s : {"rack", "walkout", "pan", "hunt"})
+    for (const char* s : {"rack", "walkout", "pan", "hunt", "tripod"})
         CHECK(list.output.find(s) != std::string::npos);
     auto bad = test::cli("synth --scene nope -o " + test::scratch_dir("synth_bad").string());
     CHECK(bad.code != 0);
     CHECK(bad.output.find("unknown scene 'nope'") != std::string::npos);
 
-    for (const char* scene : {"rack", "walkout", "pan", "hunt"}) {
+    for (const char* scene : {"rack", "walkout", "pan", "hunt", "tripod"}) {
         CAPTURE(scene);
         const fs::path a = test::scratch_dir(std::string("synth_") + scene + "_a");
         const fs::path b = test::scratch_dir(std::string("synth_") + scene + "_b");

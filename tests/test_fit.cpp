@@ -19,7 +19,7 @@ struct TinyClip {
     fs::path dir, clip, project;
 };
 
-TinyClip make_tiny(const std::string& name, const std::string& scene = "rack") {
+TinyClip make_tiny(const std::string& name, const std::string& scene = "tripod") {
     TinyClip c;
     c.dir = scratch_dir(name);
     c.clip = c.dir / "clip";
@@ -57,7 +57,7 @@ TEST_CASE("fast fit of a tiny clip beats its input and exports every pass") {
     auto sharp = export_sharp(c, "out_sharp");
     REQUIRE(sharp.size() == 8);
     const double in_psnr = mean_psnr(input, gt), out_psnr = mean_psnr(sharp, gt);
-    MESSAGE("tiny rack clip: input " << in_psnr << " dB, fast fit " << out_psnr << " dB");
+    MESSAGE("tiny tripod clip: input " << in_psnr << " dB, fast fit " << out_psnr << " dB");
     CHECK(out_psnr > in_psnr + 0.5);
     for (const auto& f : sharp) CHECK(count_nonfinite(f) == 0);
 

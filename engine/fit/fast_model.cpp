@@ -96,6 +96,24 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
             vx[t] = cx[last < 0 ? t : last].item<double>();
             vy[t] = cy[last < 0 ? t : last].item<double>();
         }
+        // Centroids of thresholded masks jitter as the blur changes the mask's outline: smooth
+        // the trajectory (±2 frames) so that the foreground mapping does not flicker.
+        {
+            std::vector<double> sx(T), sy(T);
+            for (int64_t t = 0; t < T; ++t) {
+                double ax = 0, ay = 0;
+                int n = 0;
+                for (int64_t k = std::max<int64_t>(0, t - 2); k <= std::min<int64_t>(T - 1, t + 2); ++k) {
+                    ax += vx[k];
+                    ay += vy[k];
+                    ++n;
+                }
+                sx[t] = ax / n;
+                sy[t] = ay / n;
+            }
+            vx = sx;
+            vy = sy;
+        }
         // Extent of the subject in stabilised coordinates, plus a margin for its motion.
         double fx0 = 1e30, fy0 = 1e30, fx1 = -1e30, fy1 = -1e30;
         for (int64_t t = 0; t < T; ++t) {
@@ -125,7 +143,8 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         auto m4 = F::avg_pool2d(d.mask, F::AvgPool2dFuncOptions(4).ceil_mode(true));
         m_alpha_logit = torch::logit(m4.clamp(0.05, 0.95));
     }
-    refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false);
+    if (!d.static_camera)
+        refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false);
     init_levels(m_bg, fuse(m_bg, bg_weight));
 }
 
@@ -298,6 +317,23 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     }
     total = total + m_opts.w_warp * warp_reg;
     terms["warp"] = warp_reg.item<double>();
+    // Temporal smoothness (what the paper's flow loss buys): per-frame warps and mattes of
+    // neighbouring frames should agree, or the output flickers where the atlas is consistent.
+    const int64_t T = m_data.frames;
+    if (T > 1) {
+        std::vector<int64_t> nb;
+        for (int64_t f : frames) nb.push_back(f + 1 < T ? f + 1 : f - 1);
+        auto nidx = torch::tensor(nb, torch::kLong);
+        torch::Tensor temporal = torch::zeros({});
+        for (Atlas* a : {&m_bg, &m_fg})
+            if (a->warp.requires_grad())
+                temporal = temporal + (a->warp.index_select(0, idx) - a->warp.index_select(0, nidx)).pow(2).mean();
+        if (m_two_layers)
+            temporal = temporal + (torch::sigmoid(m_alpha_logit.index_select(0, idx)) -
+                                   torch::sigmoid(m_alpha_logit.index_select(0, nidx))).abs().mean();
+        total = total + m_opts.w_temporal * temporal;
+        terms["temporal"] = temporal.item<double>();
+    }
     if (m_two_layers) {
         // Mask bootstrap (Layered Neural Atlases §3.3): pull α toward the masks early, then let
         // the reconstruction decide the soft edge.

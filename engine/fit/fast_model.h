@@ -21,6 +21,7 @@ struct FastModelOptions {
     double lr_alpha = 0.05;
     double w_tv = 0.002;        // atlas TV weight
     double w_warp = 0.01;       // residual warp smoothness
+    double w_temporal = 0.5;    // neighbouring frames' warps and mattes agree
     double w_bootstrap = 0.5;   // alpha to mask, halves every `bootstrap_halflife` steps
     int bootstrap_halflife = 400;
     int align_rounds = 2;       // ECC refinement rounds at initialisation (0: off)

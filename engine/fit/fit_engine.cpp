@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cmath>
+#include <cstdlib>
 #include <sstream>
 
 #include "fit/fast_model.h"
@@ -20,7 +21,24 @@ using Clock = std::chrono::steady_clock;
 
 std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& data, uint64_t seed) {
     torch::manual_seed(seed);
-    if (preset == "fast") return std::make_unique<FastModel>(data, FastModelOptions{});
+    if (preset == "fast") {
+        FastModelOptions o;
+        // Tuning hooks for the benches (documented in README): REFOCUS_FAST_<NAME>=value.
+        auto env = [](const char* name, double& v) {
+            if (const char* e = std::getenv(name)) v = std::atof(e);
+        };
+        env("REFOCUS_FAST_LR_ATLAS", o.lr_atlas);
+        env("REFOCUS_FAST_LR_WARP", o.lr_warp);
+        env("REFOCUS_FAST_W_TV", o.w_tv);
+        env("REFOCUS_FAST_W_WARP", o.w_warp);
+        env("REFOCUS_FAST_W_TEMPORAL", o.w_temporal);
+        double cell = o.warp_cell_px, rounds = o.align_rounds;
+        env("REFOCUS_FAST_WARP_CELL", cell);
+        env("REFOCUS_FAST_ALIGN_ROUNDS", rounds);
+        o.warp_cell_px = int(cell);
+        o.align_rounds = int(rounds);
+        return std::make_unique<FastModel>(data, o);
+    }
     if (preset == "perframe") return nullptr;  // no atlas model: see step_perframe()
     throw Error("unknown preset '" + preset + "' (use fast, paper or perframe)");
 }

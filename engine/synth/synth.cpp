@@ -236,6 +236,9 @@ const SceneDef kScenes[] = {
      "focus fixed at 1.0)"},
     {"pan", "camera pan with fixed focus on the far wall; the subject stays blurred; parallax"},
     {"hunt", "autofocus hunting: focus oscillates around the subject with decaying amplitude"},
+    {"tripod",
+     "locked-off camera, static subject, focus sweeps wall -> subject -> wall (focus breathing "
+     "on a tripod: every depth is sharp in some frame)"},
 };
 
 int scene_index(const std::string& name) {
@@ -292,7 +295,7 @@ SynthFrameState SynthClip::state(int t) const {
     const double phase = 2 * kPi * unit(hash(seed, 500));
     SynthFrameState s;
     // Handheld rotation: ~1 px of smooth wobble (depth-independent).
-    const double shake = (m_opts.scene == "pan" ? 0.4 : 1.0) * S;
+    const double shake = (m_opts.scene == "pan" ? 0.4 : m_opts.scene == "tripod" ? 0.0 : 1.0) * S;
     s.shake_x = shake * noise1(seed + 17, sec * 3.0);
     s.shake_y = shake * noise1(seed + 29, sec * 3.0);
     if (m_opts.scene == "rack") {
@@ -315,6 +318,13 @@ SynthFrameState SynthClip::state(int t) const {
         s.fg_x = W * (0.75 - 0.5 * tau);
         s.fg_y = H * 0.57;
         s.pan = S * (-60 + 120 * tau);
+    } else if (m_opts.scene == "tripod") {
+        const double tri = 1.0 - std::abs(2.0 * tau - 1.0);  // 0 → 1 → 0
+        s.focus = lerp(0.15, 1.0, tri);
+        s.fg_invdepth = 0.95;
+        s.fg_x = W * 0.5;
+        s.fg_y = H * 0.57;
+        s.pan = 0;
     } else {  // hunt
         const double swing = 0.5 * (1 - 0.55 * tau) * std::sin(2 * kPi * 2.5 * tau + phase);
         s.focus = std::clamp(0.95 + swing + 0.04 * noise1(seed + 41, sec * 4), 0.4, 1.5);
