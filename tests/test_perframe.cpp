@@ -1,0 +1,249 @@
+// The per-frame baseline: TV-regularised MAP deconvolution (seed 001 eq. 1.5 + 1.7) with the
+// lens blur layer as H. Every number asserted here was measured first (see the MESSAGE lines)
+// and is asserted with a margin.
+#include <torch/torch.h>
+// glog (through LibTorch) defines CHECK too; doctest's is the one meant here.
+#undef CHECK
+#include <doctest/doctest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <random>
+
+#include "fit/perframe.h"
+#include "io/image.h"
+#include "io/image_file.h"
+#include "metrics/metrics.h"
+#include "ops/lens_blur.h"
+#include "util/error.h"
+
+using namespace refocus;
+
+namespace {
+
+// A textured linear-light frame like the synth clips' poster wall, at several scales: glyph-like
+// 5×7 bitmaps (1–2 px strokes), checkerboards (2–6 px), stripes (period 4–10 px, two angles), a
+// Siemens star and smooth coloured value noise, over a gradient.
+torch::Tensor texture_frame(int w, int h, unsigned seed = 7) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+    auto img = torch::zeros({3, h, w}, torch::kFloat32);
+    auto a = img.accessor<float, 3>();
+    auto put = [&](int x, int y, float r, float g, float b) {
+        if (x < 0 || y < 0 || x >= w || y >= h) return;
+        a[0][y][x] = r;
+        a[1][y][x] = g;
+        a[2][y][x] = b;
+    };
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) put(x, y, 0.15f + 0.5f * x / w, 0.2f + 0.4f * y / h, 0.35f);
+    // Lattice of random colours for value noise (spacing 4 px, bilinear in between).
+    const int lw = w / 4 + 2, lh = h / 4 + 2;
+    std::vector<float> lattice(size_t(lw) * lh * 3);
+    for (auto& v : lattice) v = uni(rng);
+    const int cell = 16;
+    for (int cy = 0; cy * cell < h; ++cy)
+        for (int cx = 0; cx * cell < w; ++cx) {
+            const int x0 = cx * cell, y0 = cy * cell;
+            const int kind = (cx * 7 + cy * 3 + int(seed)) % 5;
+            const float ink = 0.03f + 0.05f * uni(rng), paper = 0.6f + 0.3f * uni(rng);
+            if (kind == 0) {  // two glyphs of 5×7 random bits, stroke 1 or 2 px
+                const int k = 1 + int(uni(rng) * 2);
+                for (int gy = 0; gy < 7; ++gy)
+                    for (int gx = 0; gx < 5; ++gx) {
+                        const bool on0 = uni(rng) < 0.45f, on1 = uni(rng) < 0.45f;
+                        for (int yy = 0; yy < k; ++yy)
+                            for (int xx = 0; xx < k; ++xx) {
+                                const int y = y0 + 1 + gy * k + yy;
+                                put(x0 + 1 + gx * k + xx, y, on0 ? ink : paper, on0 ? ink : paper,
+                                    on0 ? ink : 0.9f * paper);
+                                put(x0 + 8 + gx * k / 2 + xx, y, on1 ? ink : paper,
+                                    on1 ? ink : paper, on1 ? ink : 0.9f * paper);
+                            }
+                    }
+            } else if (kind == 1) {  // checkerboard, 2–6 px squares
+                const int sq = 2 + int(uni(rng) * 5);
+                for (int y = y0; y < y0 + cell; ++y)
+                    for (int x = x0; x < x0 + cell; ++x) {
+                        const bool on = ((x / sq) + (y / sq)) % 2 == 0;
+                        put(x, y, on ? 0.8f : 0.05f, on ? 0.7f : 0.1f, on ? 0.2f : 0.05f);
+                    }
+            } else if (kind == 2) {  // stripes, period 4–10 px, horizontal or diagonal
+                const int period = 4 + int(uni(rng) * 7);
+                const bool diag = uni(rng) < 0.5f;
+                for (int y = y0; y < y0 + cell; ++y)
+                    for (int x = x0; x < x0 + cell; ++x) {
+                        const bool on = ((diag ? x + y : y) % period) < period / 2;
+                        put(x, y, on ? 0.1f : 0.9f, on ? 0.3f : 0.5f, on ? 0.7f : 0.2f);
+                    }
+            } else if (kind == 3) {  // Siemens star, 8 spokes
+                const float cxf = x0 + cell / 2.0f, cyf = y0 + cell / 2.0f;
+                for (int y = y0; y < y0 + cell; ++y)
+                    for (int x = x0; x < x0 + cell; ++x) {
+                        const float ang = std::atan2(y + 0.5f - cyf, x + 0.5f - cxf);
+                        const float v = std::sin(8 * ang) > 0 ? 0.85f : 0.04f;
+                        put(x, y, v, v, v);
+                    }
+            } else {  // smooth coloured value noise
+                for (int y = y0; y < y0 + cell; ++y)
+                    for (int x = x0; x < x0 + cell; ++x) {
+                        const float fx = x / 4.0f, fy = y / 4.0f;
+                        const int ix = int(fx), iy = int(fy);
+                        const float tx = fx - ix, ty = fy - iy;
+                        float c[3];
+                        for (int ch = 0; ch < 3; ++ch) {
+                            auto L = [&](int i, int j) {
+                                return lattice[(size_t(std::min(j, lh - 1)) * lw + std::min(i, lw - 1)) * 3 + ch];
+                            };
+                            const float v = (1 - ty) * ((1 - tx) * L(ix, iy) + tx * L(ix + 1, iy)) +
+                                            ty * ((1 - tx) * L(ix, iy + 1) + tx * L(ix + 1, iy + 1));
+                            c[ch] = v * v;
+                        }
+                        put(x, y, c[0], c[1], c[2]);
+                    }
+            }
+        }
+    return img;
+}
+
+Image to_image(const torch::Tensor& chw) {
+    auto t = chw.to(torch::kFloat32).permute({1, 2, 0}).contiguous();
+    Image out(int(t.size(1)), int(t.size(0)), int(t.size(2)));
+    std::memcpy(out.data(), t.data_ptr<float>(), out.size() * sizeof(float));
+    return out;
+}
+
+double psnr_t(const torch::Tensor& a, const torch::Tensor& b) { return psnr(to_image(a), to_image(b)); }
+
+// g = H(sharp) + n, n ~ N(0, σ²).
+torch::Tensor blur_and_noise(const torch::Tensor& sharp, const torch::Tensor& radius, double sigma,
+                             const LensBlurParams& p = {}, uint64_t seed = 3) {
+    auto g = lens_blur(sharp, radius, p);
+    torch::manual_seed(seed);
+    return g + sigma * torch::randn_like(g);
+}
+
+torch::Tensor ramp_radius(int w, int h, double r0, double r1) {
+    return torch::linspace(r0, r1, w, torch::kFloat32).view({1, w}).expand({h, w}).contiguous();
+}
+
+struct Case {
+    double in_psnr, out_psnr;
+    TvDeconvStats stats;
+};
+
+Case run_case(const torch::Tensor& sharp, const torch::Tensor& radius, double sigma,
+              const TvDeconvOptions& opt = {}) {
+    auto g = blur_and_noise(sharp, radius, sigma, opt.blur);
+    Case c;
+    auto u = deconvolve_tv(g, radius, opt, &c.stats);
+    c.in_psnr = psnr_t(g, sharp);
+    c.out_psnr = psnr_t(u, sharp);
+    return c;
+}
+
+constexpr double kSigma = 0.005;
+
+}  // namespace
+
+TEST_CASE("perframe: debug" * doctest::skip()) {
+    auto sharp = texture_frame(96, 64);
+    auto radius = torch::full({64, 96}, 3.0f);
+    auto g = lens_blur(sharp, radius);
+    MESSAGE("sharp min " << sharp.min().item<float>() << " max " << sharp.max().item<float>() << " mean " << sharp.mean().item<float>());
+    MESSAGE("blur min " << g.min().item<float>() << " max " << g.max().item<float>() << " mean " << g.mean().item<float>());
+    auto one = torch::ones_like(sharp);
+    auto g1 = lens_blur(one, radius);
+    MESSAGE("const min " << g1.min().item<float>() << " max " << g1.max().item<float>());
+    MESSAGE("centre " << g1[0][32][48].item<float>() << " " << g1[0][32][47].item<float>() << " row " << g1[0][32].slice(0,40,56));
+    auto gr = lens_blur_reference(sharp, radius);
+    MESSAGE("ref diff " << (gr.to(torch::kFloat32) - g).abs().max().item<float>() << " ref psnr " << psnr_t(gr, sharp));
+    write_image_file("/tmp/pf_sharp.png", to_image(sharp), PixelFormat::Png8);
+    write_image_file("/tmp/pf_blur.png", to_image(g), PixelFormat::Png8);
+    MESSAGE("psnr lin " << psnr(to_image(g), to_image(sharp), MetricSpace::Linear));
+    MESSAGE("psnr self " << psnr_t(sharp, sharp) << " blur " << psnr_t(g, sharp));
+}
+
+TEST_CASE("perframe: blur timing" * doctest::skip()) {
+    torch::set_num_threads(2);
+    for (float rr : {0.0f, 3.0f, 8.0f}) {
+        auto x = torch::rand({3, 180, 320});
+        auto radius = torch::full({180, 320}, rr);
+        auto t0 = std::chrono::steady_clock::now();
+        for (int i = 0; i < 5; ++i) x = lens_blur(x, radius);
+        auto t1 = std::chrono::steady_clock::now();
+        for (int i = 0; i < 5; ++i) x = lens_blur_adjoint(x, radius);
+        auto t2 = std::chrono::steady_clock::now();
+        MESSAGE("r " << rr << " fwd " << std::chrono::duration<double>(t1 - t0).count() / 5 << " adj " << std::chrono::duration<double>(t2 - t1).count() / 5 << " taps " << lens_blur_tap_count(radius));
+    }
+}
+
+TEST_CASE("perframe: trace" * doctest::skip()) {
+    torch::set_num_threads(2);
+    auto sharp = texture_frame(96, 64);
+    auto radius = torch::full({64, 96}, float(std::getenv("PF_R") ? std::atof(std::getenv("PF_R")) : 3.0));
+    auto g = blur_and_noise(sharp, radius, kSigma);
+    TvDeconvOptions opt;
+    if (auto e = std::getenv("PF_LAMBDA")) opt.lambda = std::atof(e);
+    if (auto e = std::getenv("PF_RHO")) opt.rho = std::atof(e);
+    if (auto e = std::getenv("PF_CG")) opt.cg_iterations = std::atoi(e);
+    if (auto e = std::getenv("PF_IT")) opt.iterations = std::atoi(e);
+    if (auto e = std::getenv("PF_RELAX")) opt.relaxation = std::atof(e);
+    if (auto e = std::getenv("PF_PRECOND")) opt.precondition = std::atoi(e) != 0;
+    opt.tol = 0;
+    TvDeconvStats st;
+    // Report PSNR along the way by re-running with growing iteration caps would cost too much;
+    // print the objective trace instead, and the final PSNR.
+    auto u = deconvolve_tv(g, radius, opt, &st);
+    for (size_t i = 0; i < st.objective.size(); i += std::max<size_t>(1, st.objective.size() / 20))
+        std::printf("it %zu E %.6f dE %.3g\n", i, st.objective[i], i ? st.rel_change[i - 1] : 0.0);
+    std::printf("in %.2f out %.2f  rho %g  %d it %.2f s, %d applies\n", psnr_t(g, sharp), psnr_t(u, sharp), st.rho, st.iterations, st.seconds, st.blur_applications);
+}
+
+TEST_CASE("perframe: constant 3 px disk blur, textured frame, gains PSNR") {
+    torch::set_num_threads(2);
+    auto sharp = texture_frame(96, 64);
+    auto radius = torch::full({64, 96}, 3.0f);
+    auto c = run_case(sharp, radius, kSigma);
+    MESSAGE("r=3: input " << c.in_psnr << " dB -> " << c.out_psnr << " dB in " << c.stats.iterations
+                          << " it, " << c.stats.seconds << " s");
+    CHECK(c.out_psnr >= c.in_psnr + 5.0);
+}
+
+TEST_CASE("perframe: spatially varying 0-6 px ramp gains PSNR") {
+    torch::set_num_threads(2);
+    auto sharp = texture_frame(96, 64, 11);
+    auto radius = ramp_radius(96, 64, 0.0, 6.0);
+    auto c = run_case(sharp, radius, kSigma);
+    MESSAGE("ramp 0-6: input " << c.in_psnr << " dB -> " << c.out_psnr << " dB in "
+                               << c.stats.iterations << " it, " << c.stats.seconds << " s");
+    CHECK(c.out_psnr >= c.in_psnr + 3.0);
+}
+
+// The λ / ρ / iteration sweep behind the defaults. Skipped in CI; run with
+//   test_perframe --no-skip -tc="*sweep*"
+TEST_CASE("perframe: lambda sweep (tuning, not run by default)" * doctest::skip()) {
+    torch::set_num_threads(2);
+    const double lambdas[] = {2.5e-4, 5e-4, 1e-3, 2e-3, 4e-3, 8e-3};
+    const double radii[] = {2, 4, 6, 8};
+    for (double sigma : {0.002, 0.005, 0.01}) {
+        for (double lam : lambdas) {
+            std::printf("sigma %.3f lambda %.1e:", sigma, lam);
+            double mean_gain = 0;
+            for (double rr : radii) {
+                auto sharp = texture_frame(96, 64, 5 + int(rr));
+                auto radius = torch::full({64, 96}, float(rr));
+                TvDeconvOptions opt;
+                opt.lambda = lam;
+                opt.iterations = 300;
+                opt.tol = 1e-5;
+                auto c = run_case(sharp, radius, sigma, opt);
+                std::printf("  r%.0f %.2f->%.2f (%d it)", rr, c.in_psnr, c.out_psnr, c.stats.iterations);
+                mean_gain += (c.out_psnr - c.in_psnr) / 4;
+            }
+            std::printf("  mean gain %.2f\n", mean_gain);
+            std::fflush(stdout);
+        }
+    }
+}
