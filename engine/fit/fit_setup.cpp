@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "fit/stack_coc.h"
 #include "fit/tensor_image.h"
 #include "prepare/prepare.h"
 #include "util/error.h"
@@ -51,7 +52,6 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         log.info("radius: given per frame by " + opts.coc_path);
     } else {
         radius = prep.coc;
-        log.info("radius: estimated per frame (edge reblur ratio, guided filter)");
     }
     d->radius = stack_images(radius).squeeze(1).contiguous();
     d->static_camera = prep.decisions.static_camera;
@@ -64,6 +64,10 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                                                       torch::kFloat64)
                                             .view({3, 3}));
     d->to_ref = torch::stack(hs);
+    if (!prep.flow.fwd.empty()) {
+        d->flow_fwd = stack_images(prep.flow.fwd).narrow(1, 0, 2).contiguous();
+        d->flow_valid = stack_images(prep.flow.fwd_valid).narrow(1, 0, 1).contiguous();
+    }
     d->has_subject = prep.decisions.has_subject && !prep.masks.empty();
     if (d->has_subject && opts.mask_path.empty()) {
         // Automatic masks threshold the flow residual, and a focus change alone makes edges
@@ -102,6 +106,15 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         }
     }
     if (d->has_subject) d->mask = stack_images(prep.masks);
+    if (opts.coc_path.empty()) {
+        if (d->frames >= 3 && !opts.single_image_coc) {
+            d->radius = estimate_radius_from_stack(*d);
+            log.info("radius: estimated per frame from the clip as a focal stack (median " +
+                     std::to_string(d->radius.median().item<float>()).substr(0, 4) + " px)");
+        } else {
+            log.info("radius: estimated per frame (edge reblur ratio, guided filter)");
+        }
+    }
     log.info(std::string("fit: ") + (d->static_camera ? "static camera, no learned background warp"
                                                       : "moving camera, learned residual warp") +
              ", " + (d->has_subject ? "two layers (moving subject)" : "one layer (no moving subject)"));

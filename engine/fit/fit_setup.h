@@ -14,6 +14,7 @@ struct FitSetupOptions {
     std::string coc_path;   // per-frame radius maps (EXR, px); empty: the prepare estimate
     std::string mask_path;  // per-frame masks; empty: automatic
     bool force_prepare = false;
+    bool single_image_coc = false;  // radius from the per-frame edge estimator only
 };
 
 std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOptions& opts,
