@@ -21,6 +21,8 @@ struct FitData {
     torch::Tensor radius;     // [T,H,W] circle-of-confusion radius, px
     torch::Tensor mask;       // [T,1,H,W] foreground in [0,1]; undefined: one layer
     torch::Tensor to_ref;     // [T,3,3] float64 homography frame t → reference frame
+    torch::Tensor flow_fwd;   // [T-1,2,H,W] flow t → t+1, px (prepare/flow.h); may be undefined
+    torch::Tensor flow_valid; // [T-1,1,H,W] 1 where the flow is forward-backward consistent
     bool static_camera = true;
     bool has_subject = false;
 };
