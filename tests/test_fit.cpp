@@ -3,9 +3,13 @@
 #include <doctest/doctest.h>
 
 #include <nlohmann/json.hpp>
+#include <torch/torch.h>
+
+#include <algorithm>
 
 #include "io/clip.h"
 #include "metrics/metrics.h"
+#include "fit/fit_setup.h"
 #include "project/project.h"
 #include "test_util.h"
 
@@ -19,12 +23,13 @@ struct TinyClip {
     fs::path dir, clip, project;
 };
 
-TinyClip make_tiny(const std::string& name, const std::string& scene = "tripod") {
+TinyClip make_tiny(const std::string& name, const std::string& scene = "tripod",
+                   const std::string& size = "64x36") {
     TinyClip c;
     c.dir = scratch_dir(name);
     c.clip = c.dir / "clip";
     RunResult r = cli("synth --scene " + scene + " -o '" + c.clip.string() +
-                      "' --size 64x36 --frames 8 --seed 3");
+                      "' --size " + size + " --frames 8 --seed 3");
     INFO(r.output);
     REQUIRE(r.code == 0);
     c.project = c.dir / "proj";
@@ -148,4 +153,25 @@ TEST_CASE("fit refuses bad inputs with messages naming the problem") {
     r = cli("fit '" + c.project.string() + "' --preset magic --iters 2");
     CHECK(r.code != 0);
     CHECK(r.output.find("unknown preset") != std::string::npos);
+}
+
+TEST_CASE("radius from the clip as a focal stack matches the ground truth on a focus sweep") {
+    TinyClip c = make_tiny("fit_stack_coc", "tripod", "128x72");
+    Project p = Project::load(c.project);
+    PrepareLog log;
+    auto d = build_fit_data(p, {}, log);
+    auto gt = read_all_frames((c.clip / "coc_%04d.exr").string());
+    std::vector<float> err;
+    double sum_gt = 0;
+    for (int t = 0; t < d->frames; ++t)
+        for (int y = 4; y < d->height - 4; ++y)
+            for (int x = 4; x < d->width - 4; ++x) {
+                const float g = gt[t].at(x, y, 0);
+                err.push_back(std::abs(d->radius[t][y][x].item<float>() - g));
+                sum_gt += g;
+            }
+    std::sort(err.begin(), err.end());
+    const double median = err[err.size() / 2], mean_gt = sum_gt / err.size();
+    MESSAGE("focal-stack radius: median abs error " << median << " px (mean true radius " << mean_gt << " px)");
+    CHECK(median < 0.35 * mean_gt);
 }
