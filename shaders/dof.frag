@@ -38,10 +38,14 @@ void main() {
         layer = vec4(texelFetch(u_prep0_tx, p, 0).rgb, texelFetch(u_prep1_tx, p, 0).r);
     } else {
         float sr = 0.0, sg = 0.0, sb = 0.0, sa = 0.0, sw = 0.0;
+        // Taps with dx² + dy² ≥ (R + ½)² add exactly 0 (ρ_n ≥ ρ): skip them per row (+1 px
+        // against rounding; the twin need not skip the same ones).
+        float reach2 = (rwin + 0.5) * (rwin + 0.5);
         for (int dy = -half_w; dy <= half_w; ++dy) {
             int qy = p.y + dy;
             if (qy < 0 || qy >= n.y) continue;
-            for (int dx = -half_w; dx <= half_w; ++dx) {
+            int span = min(half_w, int(sqrt(max(reach2 - float(dy * dy), 0.0))) + 1);
+            for (int dx = -span; dx <= span; ++dx) {
                 int qx = p.x + dx;
                 if (qx < 0 || qx >= n.x) continue;
                 vec4 p0 = texelFetch(u_prep0_tx, ivec2(qx, qy), 0);

@@ -162,10 +162,14 @@ inline void gather(const PreparedLayer& L, int w, int h, int px, int py, float r
     }
     const int side = 2 * window + 1;
     float sr = 0.0f, sg = 0.0f, sb = 0.0f, sa = 0.0f, sw = 0.0f;
+    // Taps with dx² + dy² ≥ (R + ½)² add exactly 0 (ρ_n ≥ ρ): skip them per row.
+    const float reach2 = (rwin + 0.5f) * (rwin + 0.5f);
     for (int dy = -half; dy <= half; ++dy) {
         const int qy = py + dy;
         if (qy < 0 || qy >= h) continue;
-        for (int dx = -half; dx <= half; ++dx) {
+        const int span = std::min(
+            half, static_cast<int>(std::sqrt(std::max(reach2 - float(dy * dy), 0.0f))) + 1);
+        for (int dx = -span; dx <= span; ++dx) {
             const int qx = px + dx;
             if (qx < 0 || qx >= w) continue;
             const size_t oq = static_cast<size_t>(qy) * w + qx;
