@@ -231,6 +231,7 @@ void GlPreview::set_atlases(const Image& background_atlas, const Image& foregrou
     if (!foreground_atlas.empty() && foreground_atlas.channels < 3)
         throw Error("GL preview: the foreground atlas needs >= 3 channels");
     upload(m_bg_atlas, background_atlas);
+    if (!m_has_fg_atlas && !foreground_atlas.empty()) m_fg_frame = false;
     m_has_fg_atlas = !foreground_atlas.empty();
     if (m_has_fg_atlas) upload(m_fg_atlas, foreground_atlas);
     m_need_composite = true;
@@ -249,6 +250,7 @@ void GlPreview::set_frame(const Image& background_uv, const Image& foreground_uv
             throw Error("GL preview: the alpha map must be 1 channel, frame size");
         upload(m_fg_uv, foreground_uv);
         upload(m_alpha, alpha);
+        m_fg_frame = true;
     }
     ensure_size(w, h);
     m_need_composite = true;
@@ -273,6 +275,13 @@ void GlPreview::set_depth(const PreviewDepth& depth) {
     m_has_fg_depth = !depth.foreground.empty();
     if (m_has_bg_depth) upload(m_bg_depth, depth.background);
     if (m_has_fg_depth) upload(m_fg_depth, depth.foreground);
+    if ((m_has_bg_depth && depth.background.channels != 1) ||
+        (m_has_fg_depth && depth.foreground.channels != 1))
+        throw Error("GL preview: inverse depth maps need 1 channel");
+    m_bg_depth_w = depth.background.width;
+    m_bg_depth_h = depth.background.height;
+    m_fg_depth_w = depth.foreground.width;
+    m_fg_depth_h = depth.foreground.height;
     m_bg_depth_const = depth.background_const;
     m_fg_depth_const = depth.foreground_const;
 }
@@ -321,6 +330,14 @@ void GlPreview::draw(unsigned int program, int w, int h,
 void GlPreview::render(const PreviewLens& lens) {
     check_preview_lens(lens);
     if (m_width == 0) throw Error("GL preview: render() before set_frame() or set_layers()");
+    if (m_need_composite && m_has_fg_atlas && !m_fg_frame)
+        throw Error(
+            "GL preview: set_frame() with the foreground UV and alpha maps is needed "
+            "after set_atlases() with a foreground atlas");
+    if ((m_has_bg_depth && (m_bg_depth_w != m_width || m_bg_depth_h != m_height)) ||
+        (m_has_fg_depth && (m_fg_depth_w != m_width || m_fg_depth_h != m_height)))
+        throw Error("GL preview: inverse depth maps must have the frame's size " +
+                    std::to_string(m_width) + "x" + std::to_string(m_height));
     StateGuard guard;
     if (m_need_composite) {
         glUseProgram(m_composite_prog);

@@ -42,7 +42,8 @@ class GlPreview {
     // Atlases, ≥ 3 channels (extra ignored); `foreground_atlas` may be empty (one layer).
     void set_atlases(const Image& background_atlas, const Image& foreground_atlas);
     // This frame's UV maps (2 channels) and alpha (1 channel), all the frame's size; the next
-    // render() runs the composite pass. foreground_uv/alpha are ignored without a foreground.
+    // render() runs the composite pass. foreground_uv/alpha are ignored without a foreground
+    // atlas, so call set_atlases() first.
     void set_frame(const Image& background_uv, const Image& foreground_uv, const Image& alpha);
     // Or: layers already composited (3/3/1 channels); the next render() skips the composite.
     void set_layers(const PreviewLayers& layers);
@@ -54,7 +55,8 @@ class GlPreview {
 
     int width() const { return m_width; }
     int height() const { return m_height; }
-    // RGBA32F textures, frame size, row 0 = image row 0 (flip V when drawing with ImGui).
+    // RGBA32F textures, frame size, texel row 0 = image row 0 (the top): ImGui::Image with the
+    // default uv0 = (0, 0), uv1 = (1, 1) shows them upright.
     unsigned int composite_texture() const { return m_composite; }  // (C, 1)
     unsigned int result_texture() const;                            // (depth of field, 1)
 
@@ -77,6 +79,8 @@ class GlPreview {
     unsigned int m_bg_atlas = 0, m_fg_atlas = 0, m_bg_uv = 0, m_fg_uv = 0, m_alpha = 0;
     unsigned int m_bg_depth = 0, m_fg_depth = 0;
     bool m_has_fg_atlas = false, m_has_bg_depth = false, m_has_fg_depth = false;
+    bool m_fg_frame = false;  // foreground UV and alpha uploaded for the current atlases
+    int m_bg_depth_w = 0, m_bg_depth_h = 0, m_fg_depth_w = 0, m_fg_depth_h = 0;
     float m_bg_depth_const = 0.0f, m_fg_depth_const = 0.0f;
     bool m_need_composite = false, m_composited = false;
     // layers: (C, 1), (B, 1), (F, α)
