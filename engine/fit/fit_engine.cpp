@@ -12,6 +12,7 @@
 
 #include "fit/fast_model.h"
 #include "fit/losses.h"
+#include "fit/paper_model.h"
 #include "fit/perframe.h"
 #include "util/error.h"
 
@@ -39,6 +40,7 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         o.align_rounds = int(rounds);
         return std::make_unique<FastModel>(data, o);
     }
+    if (preset == "paper") return std::make_unique<PaperModel>(data, PaperModelOptions{}, seed);
     if (preset == "perframe") return nullptr;  // no atlas model: see step_perframe()
     throw Error("unknown preset '" + preset + "' (use fast, paper or perframe)");
 }
