@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <random>
 
 #include "fit/perframe.h"
@@ -144,6 +145,9 @@ Case run_case(const torch::Tensor& sharp, const torch::Tensor& radius, double si
 }
 
 constexpr double kSigma = 0.005;
+// The default cap is 300 with tol 1e-4 (≈ 130–170 iterations here); the tests stop earlier to
+// stay fast, which costs ≈ 0.3 dB (measured: r = 3 gives 18.6 dB converged).
+constexpr int kTestIterations = 50;
 
 }  // namespace
 
@@ -205,9 +209,12 @@ TEST_CASE("perframe: constant 3 px disk blur, textured frame, gains PSNR") {
     torch::set_num_threads(2);
     auto sharp = texture_frame(96, 64);
     auto radius = torch::full({64, 96}, 3.0f);
-    auto c = run_case(sharp, radius, kSigma);
+    TvDeconvOptions opt;
+    opt.iterations = kTestIterations;
+    auto c = run_case(sharp, radius, kSigma, opt);
     MESSAGE("r=3: input " << c.in_psnr << " dB -> " << c.out_psnr << " dB in " << c.stats.iterations
                           << " it, " << c.stats.seconds << " s");
+    // Measured: 11.82 → 18.34 dB (+6.5) at 50 iterations, 18.63 converged.
     CHECK(c.out_psnr >= c.in_psnr + 5.0);
 }
 
@@ -215,19 +222,160 @@ TEST_CASE("perframe: spatially varying 0-6 px ramp gains PSNR") {
     torch::set_num_threads(2);
     auto sharp = texture_frame(96, 64, 11);
     auto radius = ramp_radius(96, 64, 0.0, 6.0);
-    auto c = run_case(sharp, radius, kSigma);
+    TvDeconvOptions opt;
+    opt.iterations = kTestIterations;
+    auto c = run_case(sharp, radius, kSigma, opt);
     MESSAGE("ramp 0-6: input " << c.in_psnr << " dB -> " << c.out_psnr << " dB in "
                                << c.stats.iterations << " it, " << c.stats.seconds << " s");
-    CHECK(c.out_psnr >= c.in_psnr + 3.0);
+    // Measured: 13.06 → 18.97 dB (+5.9) at 50 iterations, 19.27 converged.
+    CHECK(c.out_psnr >= c.in_psnr + 4.5);
+}
+
+TEST_CASE("perframe: a sharp frame comes back unchanged") {
+    auto sharp = texture_frame(96, 64);
+    TvDeconvStats st;
+    auto u = deconvolve_tv(sharp, torch::zeros({64, 96}), {}, &st);
+    CHECK(st.skipped_sharp);
+    CHECK(st.blur_applications == 0);
+    CHECK(torch::equal(u, sharp));
+    // Just under the threshold is still "sharp".
+    u = deconvolve_tv(sharp, torch::full({64, 96}, 0.45f), {}, &st);
+    CHECK(st.skipped_sharp);
+    CHECK(torch::equal(u, sharp));
+    // The Image overload too.
+    Image radius(96, 64, 1, 0.0f);
+    auto img = to_image(sharp);
+    auto out = deconvolve_frame(img, radius);
+    CHECK(out.pixels == img.pixels);
+}
+
+TEST_CASE("perframe: the objective (eq. 1.5 + 1.7) decreases over the iterations") {
+    torch::set_num_threads(2);
+    auto sharp = texture_frame(96, 64, 3);
+    auto radius = ramp_radius(96, 64, 1.0, 5.0);
+    auto g = blur_and_noise(sharp, radius, kSigma);
+    TvDeconvOptions opt;
+    opt.iterations = 40;
+    opt.tol = 0;
+    TvDeconvStats st;
+    deconvolve_tv(g, radius, opt, &st);
+    REQUIRE(st.objective.size() == 41);
+    REQUIRE(st.iterations == 40);
+    // ADMM is not a descent method, so allow a rise of 0.5 % of E over any single step; overall
+    // the drop is large and the last ten steps change E by < 0.5 %.
+    int rises = 0;
+    for (size_t i = 1; i < st.objective.size(); ++i) {
+        CHECK(st.objective[i] <= st.objective[i - 1] * 1.005);
+        rises += st.objective[i] > st.objective[i - 1];
+    }
+    MESSAGE("E " << st.objective.front() << " -> " << st.objective.back() << ", " << rises
+                 << " rises, last rel change " << st.rel_change.back());
+    CHECK(st.objective.back() < 0.2 * st.objective.front());
+    CHECK(st.objective[30] - st.objective[40] < 0.01 * st.objective[40]);
+    CHECK(std::abs(st.data_term + opt.lambda * st.tv_term - st.objective.back()) <
+          1e-4 * st.objective.back());
+    // Converges on the default tolerance before the default cap (a smaller frame, for time).
+    auto small = texture_frame(48, 32, 3);
+    auto r_small = ramp_radius(48, 32, 1.0, 5.0);
+    TvDeconvStats st2;
+    deconvolve_tv(blur_and_noise(small, r_small, kSigma), r_small, {}, &st2);
+    MESSAGE("default options: " << st2.iterations << " iterations, converged " << st2.converged);
+    CHECK(st2.converged);
+}
+
+TEST_CASE("perframe: a larger lambda gives a flatter image") {
+    torch::set_num_threads(2);
+    auto sharp = texture_frame(96, 64, 5);
+    auto radius = torch::full({64, 96}, 3.0f);
+    auto g = blur_and_noise(sharp, radius, kSigma);
+    double prev_tv = 1e30;
+    for (double lam : {1e-4, 1e-3, 1e-2, 1e-1}) {
+        TvDeconvOptions opt;
+        opt.lambda = lam;
+        opt.iterations = 40;
+        auto u = deconvolve_tv(g, radius, opt);
+        const double tv = colour_tv(u);
+        MESSAGE("lambda " << lam << ": TV " << tv << " (blurred input " << colour_tv(g) << ")");
+        CHECK(tv < prev_tv);
+        prev_tv = tv;
+    }
+    // At a huge λ the TV of the result is well below that of the (already smooth) input.
+    CHECK(prev_tv < 0.7 * colour_tv(g));
+}
+
+TEST_CASE("perframe: no NaN/Inf up to 16 px, and bad input is refused") {
+    torch::set_num_threads(2);
+    auto sharp = texture_frame(64, 48, 9);
+    auto radius = ramp_radius(64, 48, 0.0, 16.0);
+    auto g = blur_and_noise(sharp, radius, 0.01);
+    TvDeconvOptions opt;
+    opt.iterations = 30;
+    TvDeconvStats st;
+    auto u = deconvolve_tv(g, radius, opt, &st);
+    CHECK(torch::isfinite(u).all().item<bool>());
+    CHECK(u.min().item<float>() >= 0.0f);
+    CHECK(u.max().item<float>() < 3.0f);
+    u = deconvolve_tv(g, torch::full({48, 64}, 16.0f), opt);
+    CHECK(torch::isfinite(u).all().item<bool>());
+    // λ = 0 (plain least squares) must stay finite too.
+    opt.lambda = 0;
+    u = deconvolve_tv(g, radius, opt);
+    CHECK(torch::isfinite(u).all().item<bool>());
+    // Errors name the problem.
+    auto bad = g.clone();
+    bad[1][5][7] = std::numeric_limits<float>::quiet_NaN();
+    CHECK_THROWS_WITH_AS(deconvolve_tv(bad, radius), doctest::Contains("NaN"), Error);
+    CHECK_THROWS_WITH_AS(deconvolve_tv(g, torch::full({48, 64}, -1.0f)),
+                         doctest::Contains("negative"), Error);
+    CHECK_THROWS_WITH_AS(deconvolve_tv(g, torch::zeros({47, 64})), doctest::Contains("radius"),
+                         Error);
+    TvDeconvOptions neg;
+    neg.lambda = -1;
+    CHECK_THROWS_WITH_AS(deconvolve_tv(g, radius, neg), doctest::Contains("lambda"), Error);
+    CHECK_THROWS_AS(deconvolve_frame(Image(64, 48, 3), Image(64, 47, 1)), Error);
+    CHECK_THROWS_AS(deconvolve_frame(Image(64, 48, 4), Image(64, 48, 1)), Error);
+}
+
+TEST_CASE("perframe: the kernel is a parameter") {
+    torch::set_num_threads(2);
+    auto sharp = texture_frame(64, 48, 13);
+    auto radius = torch::full({48, 64}, 3.0f);
+    for (auto kernel : {BlurKernel::Pillbox, BlurKernel::Gaussian}) {
+        TvDeconvOptions opt;
+        opt.blur.kernel = kernel;
+        opt.blur.kappa = 0.5;
+        opt.iterations = 40;
+        auto c = run_case(sharp, radius, kSigma, opt);
+        MESSAGE("kernel " << int(kernel) << ": " << c.in_psnr << " -> " << c.out_psnr << " dB, "
+                          << c.stats.iterations << " it");
+        // Measured at 96×64: pillbox +5.7 dB, Gaussian (σ = 1.5 px) +3.4 dB.
+        CHECK(c.out_psnr >= c.in_psnr + 2.5);
+    }
+}
+
+// Time per 320×180 frame with a 0–8 px ramp (the synth clips' size); for the report.
+TEST_CASE("perframe: 320x180 timing (not run by default)" * doctest::skip()) {
+    torch::set_num_threads(2);
+    auto sharp = texture_frame(320, 180, 21);
+    for (double rmax : {4.0, 8.0}) {
+        auto radius = ramp_radius(320, 180, 0.0, rmax);
+        auto c = run_case(sharp, radius, kSigma);
+        std::printf("320x180 ramp 0-%.0f: %.2f -> %.2f dB, %d it (converged %d), %d blur calls, "
+                    "%.1f s\n",
+                    rmax, c.in_psnr, c.out_psnr, c.stats.iterations, int(c.stats.converged),
+                    c.stats.blur_applications, c.stats.seconds);
+        std::fflush(stdout);
+    }
 }
 
 // The λ / ρ / iteration sweep behind the defaults. Skipped in CI; run with
 //   test_perframe --no-skip -tc="*sweep*"
 TEST_CASE("perframe: lambda sweep (tuning, not run by default)" * doctest::skip()) {
     torch::set_num_threads(2);
-    const double lambdas[] = {2.5e-4, 5e-4, 1e-3, 2e-3, 4e-3, 8e-3};
+    const double lambdas[] = {2.5e-5, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4};
     const double radii[] = {2, 4, 6, 8};
-    for (double sigma : {0.002, 0.005, 0.01}) {
+    const double sigmas[] = {0.002, 0.005, 0.01};
+    for (double sigma : sigmas) {
         for (double lam : lambdas) {
             std::printf("sigma %.3f lambda %.1e:", sigma, lam);
             double mean_gain = 0;
@@ -237,7 +385,6 @@ TEST_CASE("perframe: lambda sweep (tuning, not run by default)" * doctest::skip(
                 TvDeconvOptions opt;
                 opt.lambda = lam;
                 opt.iterations = 300;
-                opt.tol = 1e-5;
                 auto c = run_case(sharp, radius, sigma, opt);
                 std::printf("  r%.0f %.2f->%.2f (%d it)", rr, c.in_psnr, c.out_psnr, c.stats.iterations);
                 mean_gain += (c.out_psnr - c.in_psnr) / 4;

@@ -24,16 +24,19 @@
 namespace refocus {
 
 // λ of eq. 1.7 in linear-light units (image values in [0,1], one unit of gradient per px),
-// chosen by a sweep on textured frames (glyphs, checkers, stripes, star, coloured noise,
-// 96×64 and 320×180) blurred with the disk kernel at radius 2–8 px plus Gaussian noise
-// σ = 0.005 (≈ 8-bit quantisation in the mid-tones), scored by sRGB 8-bit PSNR.
-constexpr double kDefaultTvLambda = 2e-3;
+// chosen by a sweep on textured frames (glyphs, checkers, stripes, star, coloured noise; 96×64)
+// blurred with the disk kernel at radius 2, 4, 6, 8 px plus Gaussian noise, scored by the mean
+// sRGB 8-bit PSNR gain (tests/test_perframe.cpp, "lambda sweep"). At σ = 0.005 (≈ 8-bit
+// quantisation plus sensor noise in the mid-tones): λ = 2.5e-5 → +3.4 dB, 5e-5 → +4.9,
+// 1e-4 → +5.4 (best), 2e-4 → +4.9. At σ = 0.002 the best is 2.5e-5…5e-5 (+7.7 dB, vs +6.7 at
+// 1e-4): the optimum scales roughly with σ², so pass a smaller λ for clean renders.
+constexpr double kDefaultTvLambda = 1e-4;
 // ADMM penalty as a multiple of λ when TvDeconvOptions::rho ≤ 0 (affects speed, not the answer).
 constexpr double kDefaultRhoPerLambda = 10.0;
 
 struct TvDeconvOptions {
     double lambda = kDefaultTvLambda;  // TV weight (eq. 1.7), linear-light units
-    int iterations = 80;               // maximum ADMM iterations
+    int iterations = 300;              // maximum ADMM iterations
     int cg_iterations = 4;             // CG steps per u-subproblem (warm-started from u)
     double rho = 0.0;                  // ADMM penalty; ≤ 0: kDefaultRhoPerLambda·λ
     double relaxation = 1.6;           // ADMM over-relaxation a ∈ (0, 2); 1 = plain ADMM
