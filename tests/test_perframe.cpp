@@ -14,7 +14,6 @@
 
 #include "fit/perframe.h"
 #include "io/image.h"
-#include "io/image_file.h"
 #include "metrics/metrics.h"
 #include "ops/lens_blur.h"
 #include "util/error.h"
@@ -151,38 +150,8 @@ constexpr int kTestIterations = 50;
 
 }  // namespace
 
-TEST_CASE("perframe: debug" * doctest::skip()) {
-    auto sharp = texture_frame(96, 64);
-    auto radius = torch::full({64, 96}, 3.0f);
-    auto g = lens_blur(sharp, radius);
-    MESSAGE("sharp min " << sharp.min().item<float>() << " max " << sharp.max().item<float>() << " mean " << sharp.mean().item<float>());
-    MESSAGE("blur min " << g.min().item<float>() << " max " << g.max().item<float>() << " mean " << g.mean().item<float>());
-    auto one = torch::ones_like(sharp);
-    auto g1 = lens_blur(one, radius);
-    MESSAGE("const min " << g1.min().item<float>() << " max " << g1.max().item<float>());
-    MESSAGE("centre " << g1[0][32][48].item<float>() << " " << g1[0][32][47].item<float>() << " row " << g1[0][32].slice(0,40,56));
-    auto gr = lens_blur_reference(sharp, radius);
-    MESSAGE("ref diff " << (gr.to(torch::kFloat32) - g).abs().max().item<float>() << " ref psnr " << psnr_t(gr, sharp));
-    write_image_file("/tmp/pf_sharp.png", to_image(sharp), PixelFormat::Png8);
-    write_image_file("/tmp/pf_blur.png", to_image(g), PixelFormat::Png8);
-    MESSAGE("psnr lin " << psnr(to_image(g), to_image(sharp), MetricSpace::Linear));
-    MESSAGE("psnr self " << psnr_t(sharp, sharp) << " blur " << psnr_t(g, sharp));
-}
-
-TEST_CASE("perframe: blur timing" * doctest::skip()) {
-    torch::set_num_threads(2);
-    for (float rr : {0.0f, 3.0f, 8.0f}) {
-        auto x = torch::rand({3, 180, 320});
-        auto radius = torch::full({180, 320}, rr);
-        auto t0 = std::chrono::steady_clock::now();
-        for (int i = 0; i < 5; ++i) x = lens_blur(x, radius);
-        auto t1 = std::chrono::steady_clock::now();
-        for (int i = 0; i < 5; ++i) x = lens_blur_adjoint(x, radius);
-        auto t2 = std::chrono::steady_clock::now();
-        MESSAGE("r " << rr << " fwd " << std::chrono::duration<double>(t1 - t0).count() / 5 << " adj " << std::chrono::duration<double>(t2 - t1).count() / 5 << " taps " << lens_blur_tap_count(radius));
-    }
-}
-
+// Objective trace and final PSNR for one setting, for tuning (PF_R, PF_LAMBDA, PF_RHO, PF_CG,
+// PF_IT, PF_RELAX, PF_PRECOND in the environment):  test_perframe --no-skip -tc="*trace*"
 TEST_CASE("perframe: trace" * doctest::skip()) {
     torch::set_num_threads(2);
     auto sharp = texture_frame(96, 64);
