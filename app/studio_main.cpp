@@ -1,5 +1,8 @@
 // refocus-studio: the desktop application.
+#include <unistd.h>
+
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <exception>
 #include <string>
@@ -8,6 +11,11 @@
 #include "util/threads.h"
 
 int main(int argc, char** argv) {
+    // See refocus_main.cpp: passive OpenMP waiting, set before libgomp loads.
+    if (!std::getenv("OMP_WAIT_POLICY")) {
+        setenv("OMP_WAIT_POLICY", "PASSIVE", 1);
+        execv("/proc/self/exe", argv);
+    }
     refocus::StudioOptions o;
     for (int i = 1; i < argc; ++i) {
         std::string a = argv[i];
