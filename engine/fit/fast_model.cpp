@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "fit/atlas_geometry.h"
 #include "fit/losses.h"
 #include "ops/lens_blur.h"
 
@@ -36,12 +37,6 @@ torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& gr
                                /*align_corners=*/false);
 }
 
-torch::Tensor translation(double tx, double ty) {
-    auto m = torch::eye(3, torch::kFloat64);
-    m[0][2] = tx;
-    m[1][2] = ty;
-    return m;
-}
 
 }  // namespace
 
@@ -53,26 +48,12 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     const int64_t gh = H / opts.warp_cell_px + 2, gw = W / opts.warp_cell_px + 2;
 
     // Background atlas: the bounding box of every frame mapped into the reference frame.
-    double x0 = 1e30, y0 = 1e30, x1 = -1e30, y1 = -1e30;
     auto to_ref = d.to_ref.to(torch::kFloat64).contiguous();
-    for (int64_t t = 0; t < T; ++t) {
-        auto m = to_ref[t];
-        for (double cy : {0.0, H / 2.0, double(H - 1)})
-            for (double cx : {0.0, W / 2.0, double(W - 1)}) {
-                auto p = torch::matmul(m, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
-                double px = p[0].item<double>() / p[2].item<double>();
-                double py = p[1].item<double>() / p[2].item<double>();
-                x0 = std::min(x0, px), x1 = std::max(x1, px);
-                y0 = std::min(y0, py), y1 = std::max(y1, py);
-            }
-    }
-    // Keep the atlas bounded even if a homography went wild (3x the frame at most).
-    x0 = std::max(x0, -double(W)), y0 = std::max(y0, -double(H));
-    x1 = std::min(x1, 2.0 * W), y1 = std::min(y1, 2.0 * H);
-    m_bg.origin_x = std::floor(x0) - 2;
-    m_bg.origin_y = std::floor(y0) - 2;
-    m_bg.width = static_cast<int64_t>(std::ceil(x1) - m_bg.origin_x) + 3;
-    m_bg.height = static_cast<int64_t>(std::ceil(y1) - m_bg.origin_y) + 3;
+    const AtlasBox box = mapped_frames_box(to_ref, H, W);
+    m_bg.origin_x = box.origin_x;
+    m_bg.origin_y = box.origin_y;
+    m_bg.width = box.width;
+    m_bg.height = box.height;
     m_bg.to_atlas = torch::matmul(translation(-m_bg.origin_x, -m_bg.origin_y), to_ref)
                         .to(torch::kFloat32);
     m_bg.learn_warp = !d.static_camera;
@@ -85,52 +66,13 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     if (m_two_layers) {
         bg_weight = sharpness * (1.0 - d.mask).clamp_min(1e-3);
         // Foreground mapping: translate so that each frame's subject centroid lands on one point.
-        auto m = d.mask.squeeze(1);  // [T,H,W]
-        auto mass = m.sum({1, 2}).clamp_min(1e-6);
-        auto cx = (m * grid[1]).sum({1, 2}) / mass, cy = (m * grid[0]).sum({1, 2}) / mass;
-        // Frames without a subject keep the nearest frame's centre.
-        std::vector<double> vx(T), vy(T);
-        int64_t last = -1;
-        for (int64_t t = 0; t < T; ++t) {
-            if (mass[t].item<double>() > 4.0) last = t;
-            vx[t] = cx[last < 0 ? t : last].item<double>();
-            vy[t] = cy[last < 0 ? t : last].item<double>();
-        }
-        // Centroids of thresholded masks jitter as the blur changes the mask's outline: smooth
-        // the trajectory (±2 frames) so that the foreground mapping does not flicker.
-        {
-            std::vector<double> sx(T), sy(T);
-            for (int64_t t = 0; t < T; ++t) {
-                double ax = 0, ay = 0;
-                int n = 0;
-                for (int64_t k = std::max<int64_t>(0, t - 2); k <= std::min<int64_t>(T - 1, t + 2); ++k) {
-                    ax += vx[k];
-                    ay += vy[k];
-                    ++n;
-                }
-                sx[t] = ax / n;
-                sy[t] = ay / n;
-            }
-            vx = sx;
-            vy = sy;
-        }
-        // Extent of the subject in stabilised coordinates, plus a margin for its motion.
-        double fx0 = 1e30, fy0 = 1e30, fx1 = -1e30, fy1 = -1e30;
-        for (int64_t t = 0; t < T; ++t) {
-            auto nz = torch::nonzero(m[t] > 0.05);
-            if (nz.size(0) == 0) continue;
-            auto mn = std::get<0>(nz.min(0)), mx = std::get<0>(nz.max(0));
-            fy0 = std::min(fy0, mn[0].item<double>() - vy[t]);
-            fx0 = std::min(fx0, mn[1].item<double>() - vx[t]);
-            fy1 = std::max(fy1, mx[0].item<double>() - vy[t]);
-            fx1 = std::max(fx1, mx[1].item<double>() - vx[t]);
-        }
-        if (fx0 > fx1) fx0 = -W / 4.0, fx1 = W / 4.0, fy0 = -H / 4.0, fy1 = H / 4.0;
-        const double margin = 12;
-        m_fg.origin_x = std::floor(fx0) - margin;
-        m_fg.origin_y = std::floor(fy0) - margin;
-        m_fg.width = static_cast<int64_t>(std::ceil(fx1) - m_fg.origin_x + margin) + 1;
-        m_fg.height = static_cast<int64_t>(std::ceil(fy1) - m_fg.origin_y + margin) + 1;
+        std::vector<double> vx, vy;
+        subject_track(d.mask, vx, vy);
+        const AtlasBox fbox = subject_box(d.mask, vx, vy, 12.0);
+        m_fg.origin_x = fbox.origin_x;
+        m_fg.origin_y = fbox.origin_y;
+        m_fg.width = fbox.width;
+        m_fg.height = fbox.height;
         std::vector<torch::Tensor> mats;
         for (int64_t t = 0; t < T; ++t)
             mats.push_back(translation(-vx[t] - m_fg.origin_x, -vy[t] - m_fg.origin_y));
@@ -377,16 +319,5 @@ std::map<std::string, torch::Tensor> FastModel::state() {
     return s;
 }
 
-void FastModel::load_state(const std::map<std::string, torch::Tensor>& s) {
-    torch::NoGradGuard g;
-    for (auto& [name, t] : state()) {
-        auto it = s.find(name);
-        if (it == s.end()) throw Error("checkpoint lacks tensor '" + name + "'");
-        if (!it->second.sizes().equals(t.sizes()))
-            throw Error("checkpoint tensor '" + name + "' has shape " +
-                        c10::str(it->second.sizes()) + ", the model expects " + c10::str(t.sizes()));
-        t.copy_(it->second);
-    }
-}
 
 }  // namespace refocus

@@ -40,7 +40,6 @@ public:
     void set_atlas_bg(const torch::Tensor& rgb) override;
     void set_atlas_fg(const torch::Tensor& rgb) override;
     std::map<std::string, torch::Tensor> state() override;
-    void load_state(const std::map<std::string, torch::Tensor>& s) override;
 
 private:
     struct Atlas {

@@ -62,7 +62,9 @@ public:
     virtual void set_atlas_fg(const torch::Tensor& rgb) = 0;
     // Named tensors that fully determine the model (for checkpoints).
     virtual std::map<std::string, torch::Tensor> state() = 0;
-    virtual void load_state(const std::map<std::string, torch::Tensor>& s) = 0;
+    // Copies `s` into the tensors of state(), checking that every name is there with the
+    // shape the model expects (a checkpoint of another clip or preset is refused by name).
+    virtual void load_state(const std::map<std::string, torch::Tensor>& s);
 };
 
 }  // namespace refocus

@@ -1,5 +1,7 @@
 #include "fit/paper_model.h"
 
+#include "fit/atlas_geometry.h"
+
 #include <torch/nn/functional.h>
 #include <torch/optim.h>
 #include <torch/torch.h>
@@ -25,12 +27,6 @@ torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& gr
                                /*align_corners=*/false);
 }
 
-torch::Tensor translation(double tx, double ty) {
-    auto m = torch::eye(3, torch::kFloat64);
-    m[0][2] = tx;
-    m[1][2] = ty;
-    return m;
-}
 
 int64_t round_up8(int64_t v) { return (v + 7) / 8 * 8; }
 
@@ -123,22 +119,11 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
 
     // Background atlas: the bounding box of every frame mapped into the reference frame (as the
     // fast preset), rounded up to a multiple of 8 for the decoder.
-    double x0 = 1e30, y0 = 1e30, x1 = -1e30, y1 = -1e30;
     auto to_ref = d.to_ref.to(torch::kFloat64).contiguous();
-    for (int64_t t = 0; t < T; ++t)
-        for (double cy : {0.0, H / 2.0, double(H - 1)})
-            for (double cx : {0.0, W / 2.0, double(W - 1)}) {
-                auto p = torch::matmul(to_ref[t], torch::tensor({cx, cy, 1.0}, torch::kFloat64));
-                double px = p[0].item<double>() / p[2].item<double>();
-                double py = p[1].item<double>() / p[2].item<double>();
-                x0 = std::min(x0, px), x1 = std::max(x1, px);
-                y0 = std::min(y0, py), y1 = std::max(y1, py);
-            }
-    x0 = std::max(x0, -double(W)), y0 = std::max(y0, -double(H));
-    x1 = std::min(x1, 2.0 * W), y1 = std::min(y1, 2.0 * H);
-    double ox = std::floor(x0) - 2, oy = std::floor(y0) - 2;
-    m_bg.width = round_up8(static_cast<int64_t>(std::ceil(x1) - ox) + 3);
-    m_bg.height = round_up8(static_cast<int64_t>(std::ceil(y1) - oy) + 3);
+    const AtlasBox box = mapped_frames_box(to_ref, H, W);
+    const double ox = box.origin_x, oy = box.origin_y;
+    m_bg.width = round_up8(box.width);
+    m_bg.height = round_up8(box.height);
     m_bg.to_atlas = torch::matmul(translation(-ox, -oy), to_ref).to(torch::kFloat32);
     m_bg.map = CoordMlp(opts.map_freqs, opts.map_layers, opts.map_width, 2);
 
@@ -152,39 +137,12 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
         fg_weight = sharpness * d.mask.clamp_min(1e-3);
         // Foreground: translate each frame's (smoothed) mask centroid onto one point — the
         // fast preset's stabilised mapping, here the pre-training target of M_f.
-        auto m = d.mask.squeeze(1);  // [T,H,W]
-        auto mass = m.sum({1, 2}).clamp_min(1e-6);
-        auto cx = (m * grid[1]).sum({1, 2}) / mass, cy = (m * grid[0]).sum({1, 2}) / mass;
-        std::vector<double> vx(T), vy(T);
-        int64_t last = -1;
-        for (int64_t t = 0; t < T; ++t) {
-            if (mass[t].item<double>() > 4.0) last = t;
-            vx[t] = cx[last < 0 ? t : last].item<double>();
-            vy[t] = cy[last < 0 ? t : last].item<double>();
-        }
-        std::vector<double> sx(T), sy(T);
-        for (int64_t t = 0; t < T; ++t) {
-            double ax = 0, ay = 0;
-            int n = 0;
-            for (int64_t k = std::max<int64_t>(0, t - 2); k <= std::min<int64_t>(T - 1, t + 2); ++k)
-                ax += vx[k], ay += vy[k], ++n;
-            sx[t] = ax / n, sy[t] = ay / n;
-        }
-        double fx0 = 1e30, fy0 = 1e30, fx1 = -1e30, fy1 = -1e30;
-        for (int64_t t = 0; t < T; ++t) {
-            auto nz = torch::nonzero(m[t] > 0.05);
-            if (nz.size(0) == 0) continue;
-            auto mn = std::get<0>(nz.min(0)), mx = std::get<0>(nz.max(0));
-            fy0 = std::min(fy0, mn[0].item<double>() - sy[t]);
-            fx0 = std::min(fx0, mn[1].item<double>() - sx[t]);
-            fy1 = std::max(fy1, mx[0].item<double>() - sy[t]);
-            fx1 = std::max(fx1, mx[1].item<double>() - sx[t]);
-        }
-        if (fx0 > fx1) fx0 = -W / 4.0, fx1 = W / 4.0, fy0 = -H / 4.0, fy1 = H / 4.0;
-        const double margin = 12;
-        const double fox = std::floor(fx0) - margin, foy = std::floor(fy0) - margin;
-        m_fg.width = round_up8(static_cast<int64_t>(std::ceil(fx1) - fox + margin) + 1);
-        m_fg.height = round_up8(static_cast<int64_t>(std::ceil(fy1) - foy + margin) + 1);
+        std::vector<double> sx, sy;
+        subject_track(d.mask, sx, sy);
+        const AtlasBox fbox = subject_box(d.mask, sx, sy, 12.0);
+        const double fox = fbox.origin_x, foy = fbox.origin_y;
+        m_fg.width = round_up8(fbox.width);
+        m_fg.height = round_up8(fbox.height);
         std::vector<torch::Tensor> mats;
         for (int64_t t = 0; t < T; ++t) mats.push_back(translation(-sx[t] - fox, -sy[t] - foy));
         m_fg.to_atlas = torch::stack(mats).to(torch::kFloat32);
@@ -506,16 +464,5 @@ std::map<std::string, torch::Tensor> PaperModel::state() {
     return s;
 }
 
-void PaperModel::load_state(const std::map<std::string, torch::Tensor>& s) {
-    torch::NoGradGuard g;
-    for (auto& [name, t] : state()) {
-        auto it = s.find(name);
-        if (it == s.end()) throw Error("checkpoint lacks tensor '" + name + "'");
-        if (!it->second.sizes().equals(t.sizes()))
-            throw Error("checkpoint tensor '" + name + "' has shape " +
-                        c10::str(it->second.sizes()) + ", the model expects " + c10::str(t.sizes()));
-        t.copy_(it->second);
-    }
-}
 
 }  // namespace refocus

@@ -1,0 +1,88 @@
+#include "fit/atlas_geometry.h"
+
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <cmath>
+
+namespace refocus {
+
+torch::Tensor translation(double tx, double ty) {
+    auto m = torch::eye(3, torch::kFloat64);
+    m[0][2] = tx;
+    m[1][2] = ty;
+    return m;
+}
+
+AtlasBox mapped_frames_box(const torch::Tensor& to_ref_in, int64_t H, int64_t W) {
+    auto to_ref = to_ref_in.to(torch::kFloat64).contiguous();
+    double x0 = 1e30, y0 = 1e30, x1 = -1e30, y1 = -1e30;
+    for (int64_t t = 0; t < to_ref.size(0); ++t)
+        for (double cy : {0.0, H / 2.0, double(H - 1)})
+            for (double cx : {0.0, W / 2.0, double(W - 1)}) {
+                auto p = torch::matmul(to_ref[t], torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+                const double px = p[0].item<double>() / p[2].item<double>();
+                const double py = p[1].item<double>() / p[2].item<double>();
+                x0 = std::min(x0, px), x1 = std::max(x1, px);
+                y0 = std::min(y0, py), y1 = std::max(y1, py);
+            }
+    x0 = std::max(x0, -double(W)), y0 = std::max(y0, -double(H));
+    x1 = std::min(x1, 2.0 * W), y1 = std::min(y1, 2.0 * H);
+    AtlasBox b;
+    b.origin_x = std::floor(x0) - 2;
+    b.origin_y = std::floor(y0) - 2;
+    b.width = static_cast<int64_t>(std::ceil(x1) - b.origin_x) + 3;
+    b.height = static_cast<int64_t>(std::ceil(y1) - b.origin_y) + 3;
+    return b;
+}
+
+void subject_track(const torch::Tensor& mask, std::vector<double>& vx, std::vector<double>& vy) {
+    auto m = mask.squeeze(1);  // [T,H,W]
+    const int64_t T = m.size(0);
+    auto ys = torch::arange(m.size(1), torch::kFloat32), xs = torch::arange(m.size(2), torch::kFloat32);
+    auto grid = torch::meshgrid({ys, xs}, "ij");
+    auto mass = m.sum({1, 2}).clamp_min(1e-6);
+    auto cx = (m * grid[1]).sum({1, 2}) / mass, cy = (m * grid[0]).sum({1, 2}) / mass;
+    std::vector<double> rx(T), ry(T);
+    int64_t last = -1;
+    for (int64_t t = 0; t < T; ++t) {
+        if (mass[t].item<double>() > 4.0) last = t;
+        rx[t] = cx[last < 0 ? t : last].item<double>();
+        ry[t] = cy[last < 0 ? t : last].item<double>();
+    }
+    vx.assign(T, 0.0);
+    vy.assign(T, 0.0);
+    for (int64_t t = 0; t < T; ++t) {
+        double ax = 0, ay = 0;
+        int n = 0;
+        for (int64_t k = std::max<int64_t>(0, t - 2); k <= std::min<int64_t>(T - 1, t + 2); ++k)
+            ax += rx[k], ay += ry[k], ++n;
+        vx[t] = ax / n;
+        vy[t] = ay / n;
+    }
+}
+
+AtlasBox subject_box(const torch::Tensor& mask, const std::vector<double>& vx,
+                     const std::vector<double>& vy, double margin) {
+    auto m = mask.squeeze(1);
+    const int64_t T = m.size(0), H = m.size(1), W = m.size(2);
+    double fx0 = 1e30, fy0 = 1e30, fx1 = -1e30, fy1 = -1e30;
+    for (int64_t t = 0; t < T; ++t) {
+        auto nz = torch::nonzero(m[t] > 0.05);
+        if (nz.size(0) == 0) continue;
+        auto mn = std::get<0>(nz.min(0)), mx = std::get<0>(nz.max(0));
+        fy0 = std::min(fy0, mn[0].item<double>() - vy[t]);
+        fx0 = std::min(fx0, mn[1].item<double>() - vx[t]);
+        fy1 = std::max(fy1, mx[0].item<double>() - vy[t]);
+        fx1 = std::max(fx1, mx[1].item<double>() - vx[t]);
+    }
+    if (fx0 > fx1) fx0 = -W / 4.0, fx1 = W / 4.0, fy0 = -H / 4.0, fy1 = H / 4.0;
+    AtlasBox b;
+    b.origin_x = std::floor(fx0) - margin;
+    b.origin_y = std::floor(fy0) - margin;
+    b.width = static_cast<int64_t>(std::ceil(fx1) - b.origin_x + margin) + 1;
+    b.height = static_cast<int64_t>(std::ceil(fy1) - b.origin_y + margin) + 1;
+    return b;
+}
+
+}  // namespace refocus
