@@ -123,7 +123,8 @@ int cmd_export(int argc, char** argv) {
     Args a(argc, argv, 2);
     a.check_known({"what", "format", "out"});
     if (a.positional().size() != 1 || !a.has("out"))
-        throw Error("usage: refocus export <project> --what sharp|reblur|atlas|alpha|coc|uv|all "
+        throw Error("usage: refocus export <project> --what "
+                    "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|all "
                     "[--format png|exr|tiff|mp4] --out <dir-or-file>");
     Project project = Project::load(a.positional()[0]);
     PrepareLog log;
@@ -133,12 +134,13 @@ int cmd_export(int argc, char** argv) {
     std::vector<ExportPass> passes;
     if (what == "all") {
         passes = {ExportPass::Sharp, ExportPass::Reblur, ExportPass::Atlas,
-                  ExportPass::Alpha, ExportPass::Coc,    ExportPass::Uv};
+                  ExportPass::Alpha, ExportPass::Coc,    ExportPass::Uv,
+                  ExportPass::Refocus, ExportPass::Depth};
     } else {
         passes = {parse_export_pass(what)};
     }
     for (ExportPass p : passes) {
-        const bool data_pass = p == ExportPass::Coc || p == ExportPass::Uv;
+        const bool data_pass = p == ExportPass::Coc || p == ExportPass::Uv || p == ExportPass::Depth;
         std::string format = a.get("format", data_pass ? "exr" : "png");
         if (what == "all" && data_pass) format = "exr";
         if (what == "all" && p == ExportPass::Atlas && format == "mp4") format = "png";
@@ -147,7 +149,9 @@ int cmd_export(int argc, char** argv) {
             target = (fs::path(out) / export_pass_name(p)).string();
             if (format == "mp4") target += ".mp4";
         }
-        auto files = export_pass(*engine, p, format, target, project.fps);
+        auto files = p == ExportPass::Refocus || p == ExportPass::Depth
+                         ? export_pass(*engine, project, p, format, target)
+                         : export_pass(*engine, p, format, target, project.fps);
         std::printf("%s: %zu file(s) in %s\n", export_pass_name(p), files.size(), target.c_str());
     }
     return 0;

@@ -2,6 +2,11 @@
 
 #include <torch/torch.h>
 
+#include <thread>
+
+#include "edit/depth.h"
+#include "edit/focus.h"
+#include "edit/recompose.h"
 #include "fit/tensor_image.h"
 #include "io/clip.h"
 #include "io/image_file.h"
@@ -73,7 +78,10 @@ ExportPass parse_export_pass(const std::string& n) {
     if (n == "alpha") return ExportPass::Alpha;
     if (n == "coc") return ExportPass::Coc;
     if (n == "uv") return ExportPass::Uv;
-    throw Error("unknown pass '" + n + "' (use sharp, reblur, atlas, alpha, coc, uv or all)");
+    if (n == "refocus") return ExportPass::Refocus;
+    if (n == "depth") return ExportPass::Depth;
+    throw Error("unknown pass '" + n +
+                "' (use sharp, reblur, atlas, alpha, coc, uv, refocus, depth or all)");
 }
 
 const char* export_pass_name(ExportPass p) {
@@ -84,6 +92,8 @@ const char* export_pass_name(ExportPass p) {
         case ExportPass::Alpha: return "alpha";
         case ExportPass::Coc: return "coc";
         case ExportPass::Uv: return "uv";
+        case ExportPass::Refocus: return "refocus";
+        case ExportPass::Depth: return "depth";
     }
     return "?";
 }
@@ -92,6 +102,8 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
                                      const std::string& out, double fps,
                                      const std::function<bool(int, int)>& progress) {
     const std::string name = export_pass_name(pass);
+    if (pass == ExportPass::Refocus || pass == ExportPass::Depth)
+        throw Error("--what " + name + " needs the project (its depth and focus keys)");
     const bool data_pass = pass == ExportPass::Coc || pass == ExportPass::Uv;
     if (data_pass && format != "exr" && format != "exr32")
         throw Error("--what " + name + " holds values in px / atlas coordinates: use --format exr");
@@ -143,7 +155,9 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
                 img = uv;
                 break;
             }
-            case ExportPass::Atlas: break;
+            case ExportPass::Atlas:
+            case ExportPass::Refocus:
+            case ExportPass::Depth: break;
         }
         Image frame = tensor_to_image(img.contiguous());
         if (frame.channels == 2 || frame.channels == 4) {
@@ -159,6 +173,33 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
         }
         writer.write(frame);
         if (progress && !progress(t + 1, d.frames)) {
+            writer.cancel();
+            throw Error("export cancelled");
+        }
+    }
+    return writer.finish();
+}
+
+std::vector<std::string> export_pass(FitEngine& engine, const Project& project, ExportPass pass,
+                                     const std::string& format, const std::string& out,
+                                     const std::function<bool(int, int)>& progress) {
+    if (pass != ExportPass::Refocus && pass != ExportPass::Depth)
+        return export_pass(engine, pass, format, out, project.fps, progress);
+    const bool depth_pass = pass == ExportPass::Depth;
+    if (depth_pass && format != "exr" && format != "exr32")
+        throw Error("--what depth holds inverse depth (px of blur at the clip's aperture): use --format exr");
+    const FocusTrack track = read_focus(project);  // validate before the work
+    const DepthModel depth = project_depth(engine, project.dir);
+    ClipWriteOptions wo;
+    wo.fps = project.fps;
+    ClipWriter writer(out, export_pass_name(pass), parse_clip_format(depth_pass ? "exr32" : format), wo);
+    const int threads = std::max(1, int(std::thread::hardware_concurrency()));
+    const int frames = engine.data().frames;
+    for (int t = 0; t < frames; ++t) {
+        const FrameMaps m = frame_maps(engine, t);
+        writer.write(depth_pass ? depth.depth_map(t, m.uv_bg, m.uv_fg, m.alpha)
+                                : render_refocused(m, depth, t, track.lens_at(t, &depth), threads));
+        if (progress && !progress(t + 1, frames)) {
             writer.cancel();
             throw Error("export cancelled");
         }

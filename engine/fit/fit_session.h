@@ -26,8 +26,9 @@ void write_fit_settings(Project& project, const FitSettings& s, const FitSnapsho
 std::unique_ptr<FitEngine> open_fitted(const Project& project, PrepareLog& log);
 
 // What `refocus export --what` can write.
-enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv };
-ExportPass parse_export_pass(const std::string& name);  // sharp|reblur|atlas|alpha|coc|uv
+enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv, Refocus, Depth };
+// sharp|reblur|atlas|alpha|coc|uv|refocus|depth
+ExportPass parse_export_pass(const std::string& name);
 const char* export_pass_name(ExportPass p);
 
 // Writes one pass. Sequences go to `out` (a folder) as <what>_%04d.<ext> from 0; mp4 to `out`
@@ -35,6 +36,15 @@ const char* export_pass_name(ExportPass p);
 // Returns the files written.
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
                                      const std::string& out, double fps,
+                                     const std::function<bool(int, int)>& progress = {});
+
+// Any pass, including those that need the project (edit/): Refocus (the refocused frames: the
+// project's "focus" section, edit/focus.h, through the preview's CPU twin with <project>/depth,
+// built and saved when missing or stale) and Depth (EXR only, 1 channel: the visible surface's
+// inverse depth, the foreground where alpha > 1/2; edit/depth.h). Other passes go to the
+// overload above with the project's fps.
+std::vector<std::string> export_pass(FitEngine& engine, const Project& project, ExportPass pass,
+                                     const std::string& format, const std::string& out,
                                      const std::function<bool(int, int)>& progress = {});
 
 }  // namespace refocus

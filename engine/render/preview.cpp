@@ -263,6 +263,10 @@ std::vector<float> preview_area_table(const PreviewLens& lens, const std::vector
     return area;
 }
 
+void preview_atlas_coord(float u, int n, int& i0, int& i1, float& f) {
+    atlas_coord(u, n, i0, i1, f);
+}
+
 float preview_radius(float invdepth, const PreviewLens& lens) {
     const float r =
         static_cast<float>(lens.aperture) * std::fabs(invdepth - static_cast<float>(lens.focus));

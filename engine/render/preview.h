@@ -98,6 +98,11 @@ std::vector<float> preview_shape_table(const PreviewLens& lens);
 // K(r) at r = i / kPreviewAreaSteps, i = 0 … ceil(max_radius·steps) + 1; linear in between.
 std::vector<float> preview_area_table(const PreviewLens& lens, const std::vector<float>& shape);
 
+// preview_lib.glsl atlas_coord: atlas coordinate u ∈ [−1, 1] (align_corners = false) on an
+// n-texel axis → the bilinear pair i0, i1 = min(i0 + 1, n − 1) and the weight f of i1, clamped to
+// the border texels; a non-finite u counts as 0. (For atlas-space data such as edit/depth.h.)
+void preview_atlas_coord(float u, int n, int& i0, int& i1, float& f);
+
 // r for one inverse depth: aperture·|invdepth − focus| clamped to [0, max_radius], 0 if not
 // finite.
 float preview_radius(float invdepth, const PreviewLens& lens);

@@ -1,0 +1,44 @@
+// The refocused frame; see recompose.h.
+#include "edit/recompose.h"
+
+#include <torch/torch.h>
+
+#include "fit/fit_engine.h"
+#include "fit/tensor_image.h"
+#include "util/error.h"
+
+namespace refocus {
+
+FrameMaps frame_maps(FitEngine& engine, int t) {
+    torch::NoGradGuard no_grad;
+    const Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
+    auto img = [](const torch::Tensor& x) { return x.defined() ? tensor_to_image(x[0].contiguous()) : Image(); };
+    auto uv = [](const torch::Tensor& x) {  // [1,H,W,2] → 2-channel image
+        return x.defined() ? tensor_to_image(x[0].permute({2, 0, 1}).contiguous()) : Image();
+    };
+    FrameMaps m;
+    m.sharp = img(L.sharp);
+    m.bg = img(L.bg);
+    m.uv_bg = uv(L.uv_bg);
+    if (L.fg.defined() && L.alpha.defined() && L.uv_fg.defined()) {
+        m.fg = img(L.fg);
+        m.alpha = img(L.alpha);
+        m.uv_fg = uv(L.uv_fg);
+    }
+    return m;
+}
+
+Image render_refocused(const FrameMaps& m, const DepthModel& depth, int t, const PreviewLens& lens,
+                       int threads) {
+    if (m.uv_bg.empty())
+        throw Error("refocus: frame " + std::to_string(t) + " has no UV map (the perframe preset has no atlas)");
+    PreviewLayers layers;
+    layers.composite = m.sharp;
+    layers.background = m.bg;
+    const bool two = !m.fg.empty();
+    layers.foreground = two ? m.fg : Image(m.bg.width, m.bg.height, 3);
+    layers.alpha = two ? m.alpha : Image(m.bg.width, m.bg.height, 1);
+    return render_dof(layers, depth.frame_depth(t, m.uv_bg, two ? m.uv_fg : Image()), lens, threads);
+}
+
+}  // namespace refocus

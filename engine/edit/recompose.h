@@ -1,0 +1,27 @@
+#pragma once
+// The refocused frame: the fit's own sampled layers of frame t (paper eq. 1) through the preview's
+// CPU twin (render/preview.h: layered disk-bokeh depth of field) with the inverse depth of
+// edit/depth.h and a lens from edit/focus.h. Used by `refocus export --what refocus`.
+#include "edit/depth.h"
+#include "io/image.h"
+#include "render/preview.h"
+
+namespace refocus {
+
+class FitEngine;
+
+// Frame t's maps as images (all the frame's size): sharp 3, bg 3, fg 3, alpha 1, uv_bg 2, uv_fg 2
+// channels; fg, alpha and uv_fg are empty for a one-layer clip.
+struct FrameMaps {
+    Image sharp, bg, fg, alpha, uv_bg, uv_fg;
+};
+
+// Renders frame t (the engine locks its model for the render; no gradients).
+FrameMaps frame_maps(FitEngine& engine, int t);
+
+// render_dof of m's layers with depth.frame_depth(t, ...) and `lens`. Aperture 0 gives the sharp
+// composite α·F + (1 − α)·B.
+Image render_refocused(const FrameMaps& m, const DepthModel& depth, int t, const PreviewLens& lens,
+                       int threads = 1);
+
+}  // namespace refocus
