@@ -6,6 +6,7 @@
 
 #include "args.h"
 #include "commands.h"
+#include "edit/atlas_edit.h"
 #include "fit/fit_session.h"
 #include "util/error.h"
 
@@ -129,6 +130,8 @@ int cmd_export(int argc, char** argv) {
     Project project = Project::load(a.positional()[0]);
     PrepareLog log;
     auto engine = open_fitted(project, log);
+    const ProjectEdits edits = ProjectEdits::load(project);  // atlas edits follow every frame
+    if (edits.has_edits()) std::fprintf(stderr, "applying the project's atlas edits\n");
     const std::string what = a.get("what", "sharp");
     const std::string out = a.get("out");
     std::vector<ExportPass> passes;
@@ -151,7 +154,7 @@ int cmd_export(int argc, char** argv) {
         }
         auto files = p == ExportPass::Refocus || p == ExportPass::Depth
                          ? export_pass(*engine, project, p, format, target)
-                         : export_pass(*engine, p, format, target, project.fps);
+                         : export_pass(*engine, p, format, target, project.fps, {}, &edits);
         std::printf("%s: %zu file(s) in %s\n", export_pass_name(p), files.size(), target.c_str());
     }
     return 0;

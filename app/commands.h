@@ -7,6 +7,7 @@ int cmd_info(int argc, char** argv);
 int cmd_bench(int argc, char** argv);  // refocus bench <what> (app/cmd_bench.cpp)
 int cmd_fit(int argc, char** argv);
 int cmd_export(int argc, char** argv);
+int cmd_atlas(int argc, char** argv);   // app/cmd_atlas.cpp
 int cmd_synth(int argc, char** argv);
 int bench_fit(int argc, char** argv);  // refocus bench fit (app/bench_fit.cpp)
 }  // namespace refocus

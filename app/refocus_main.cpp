@@ -34,6 +34,9 @@ const Command kCommands[] = {
      "export <project> --what sharp|reblur|atlas|alpha|coc|uv|all [--format png|exr|tiff|mp4]\n"
      "           --out <dir-or-file>",
      "write the fit's results: sequences <what>_%04d.<ext> from 0, or an mp4"},
+    {"atlas", refocus::cmd_atlas,
+     "atlas <project> --import <file> --layer bg|fg | --clear [--layer bg|fg]",
+     "bring back a repainted atlas (PNG/TIFF/EXR): the edit follows every frame"},
     {"synth", refocus::cmd_synth,
      "synth --scene rack|walkout|pan|hunt|list -o <dir> [--size WxH] [--frames N] [--seed S]",
      "render a misfocused test clip with exact ground truth (sharp, COC, alpha, flow)"},

@@ -4,6 +4,7 @@
 
 #include <thread>
 
+#include "edit/atlas_edit.h"
 #include "edit/depth.h"
 #include "edit/focus.h"
 #include "edit/recompose.h"
@@ -98,15 +99,32 @@ const char* export_pass_name(ExportPass p) {
     return "?";
 }
 
+namespace {
+// The project's atlas edits as deltas over the current atlases (undefined: no edit).
+std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const ProjectEdits* e) {
+    if (!e || !e->has_edits()) return {};
+    std::lock_guard<std::mutex> lock(engine.model_mutex());
+    if (engine.options().preset == "perframe")
+        throw Error("the project has atlas edits but the perframe preset has no atlas");
+    torch::NoGradGuard g;
+    torch::Tensor fg = engine.model().atlas_fg();
+    if (e->fg.has_edits() && !fg.defined())
+        throw Error(file_error(e->fg.label(), "foreground edit, but the fit has one layer"));
+    return {e->bg.delta(engine.model().atlas_bg()), fg.defined() ? e->fg.delta(fg) : torch::Tensor()};
+}
+}  // namespace
+
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
                                      const std::string& out, double fps,
-                                     const std::function<bool(int, int)>& progress) {
+                                     const std::function<bool(int, int)>& progress,
+                                     const ProjectEdits* edits) {
     const std::string name = export_pass_name(pass);
     if (pass == ExportPass::Refocus || pass == ExportPass::Depth)
         throw Error("--what " + name + " needs the project (its depth and focus keys)");
     const bool data_pass = pass == ExportPass::Coc || pass == ExportPass::Uv;
     if (data_pass && format != "exr" && format != "exr32")
         throw Error("--what " + name + " holds values in px / atlas coordinates: use --format exr");
+    const auto [d_bg, d_fg] = edit_deltas(engine, edits);
 
     if (pass == ExportPass::Atlas) {
         if (format == "mp4") throw Error("an atlas is an image: use --format png, tiff or exr");
@@ -114,8 +132,9 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
         fs::create_directories(out, ec);
         const PixelFormat pf = parse_pixel_format(format);
         std::vector<std::string> files;
-        auto write = [&](const torch::Tensor& t, const std::string& layer) {
+        auto write = [&](torch::Tensor t, const torch::Tensor& delta, const std::string& layer) {
             if (!t.defined()) return;
+            if (delta.defined()) t = t + delta[0];
             std::string path = (fs::path(out) / ("atlas_" + layer + "." + extension_of(pf))).string();
             write_image_file(path, tensor_to_image(t.clamp_min(0)), pf);
             files.push_back(path);
@@ -123,8 +142,8 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
         std::lock_guard<std::mutex> lock(engine.model_mutex());
         if (engine.options().preset == "perframe")
             throw Error("the perframe preset has no atlas (it deconvolves each frame alone)");
-        write(engine.model().atlas_bg(), "bg");
-        write(engine.model().atlas_fg(), "fg");
+        write(engine.model().atlas_bg(), d_bg, "bg");
+        write(engine.model().atlas_fg(), d_fg, "fg");
         return files;
     }
 
@@ -136,6 +155,7 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
     const FitData& d = engine.data();
     for (int t = 0; t < d.frames; ++t) {
         Layers L = engine.render_frame(t);
+        apply_edits(L, d_bg, d_fg);
         torch::Tensor img;
         switch (pass) {
             case ExportPass::Sharp: img = L.sharp[0]; break;

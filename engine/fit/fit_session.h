@@ -11,6 +11,8 @@
 
 namespace refocus {
 
+struct ProjectEdits;  // edit/atlas_edit.h
+
 fs::path fit_dir(const Project& project);
 
 struct FitSettings {
@@ -33,10 +35,12 @@ const char* export_pass_name(ExportPass p);
 
 // Writes one pass. Sequences go to `out` (a folder) as <what>_%04d.<ext> from 0; mp4 to `out`
 // (a file). `progress(done, total)` may return false to cancel (what was written is removed).
-// Returns the files written.
+// Returns the files written. `edits` (the project's atlas edits, may be null) show in the atlas
+// and in every rendered frame (sharp, reblur): paper Fig. 1.
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
                                      const std::string& out, double fps,
-                                     const std::function<bool(int, int)>& progress = {});
+                                     const std::function<bool(int, int)>& progress = {},
+                                     const ProjectEdits* edits = nullptr);
 
 // Any pass, including those that need the project (edit/): Refocus (the refocused frames: the
 // project's "focus" section, edit/focus.h, through the preview's CPU twin with <project>/depth,
