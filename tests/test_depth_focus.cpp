@@ -493,8 +493,28 @@ TEST_CASE("refocus export --what refocus and --what depth on a tiny fitted clip"
                                                                << psnr_sharp << " dB");
     CHECK(psnr_as_shot > psnr_sharp);
     CHECK(max_abs_diff(rf1[2], sharp[2]) > 1e-3);
+    // An atlas repaint shows in the refocused frames as in the sharp plate.
+    r = cli("export '" + proj.string() + "' --what atlas --format exr32 --out '" + (dir / "atlas").string() + "'");
+    REQUIRE_MESSAGE(r.code == 0, r.output);
+    Image atlas = read_image_file((dir / "atlas" / "atlas_bg.exr").string()).image;
+    for (int y = 0; y < atlas.height / 2; ++y)
+        for (int x = 0; x < atlas.width; ++x) atlas.at(x, y, 0) = 1.0f;
+    write_image_file((dir / "atlas" / "painted.exr").string(), atlas, PixelFormat::ExrFloat);
+    r = cli("atlas '" + proj.string() + "' --import '" + (dir / "atlas" / "painted.exr").string() + "' --layer bg");
+    REQUIRE_MESSAGE(r.code == 0, r.output);
+    p = Project::load(proj);
+    write_focus(p, FocusTrack());
+    for (const char* what : {"refocus", "sharp"}) {
+        r = cli("export '" + proj.string() + "' --what " + what + " --format exr32 --out '" +
+                (dir / (std::string("edited_") + what)).string() + "'");
+        REQUIRE_MESSAGE(r.code == 0, r.output);
+    }
+    const auto edited_rf = read_all_frames((dir / "edited_refocus" / "refocus_%04d.exr").string());
+    const auto edited_sharp = read_all_frames((dir / "edited_sharp" / "sharp_%04d.exr").string());
+    CHECK(max_abs_diff(edited_sharp[1], sharp[1]) > 0.1);
+    CHECK(max_abs_diff(edited_rf[1], edited_sharp[1]) < 1e-3);
     // A malformed focus section stops the export naming the field.
-    p.sections["focus"]["aperture"][0]["value"] = "x";
+    p.sections["focus"]["aperture"] = json::array({{{"frame", 0}, {"value", "x"}}});
     p.save();
     r = cli("export '" + proj.string() + "' --what refocus --out '" + (dir / "rf2").string() + "'");
     CHECK(r.code != 0);

@@ -11,7 +11,10 @@ namespace refocus {
 
 FrameMaps frame_maps(FitEngine& engine, int t) {
     torch::NoGradGuard no_grad;
-    const Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
+    return frame_maps(engine.render_frame(t));  // holds model_mutex() while it renders
+}
+
+FrameMaps frame_maps(const Layers& L) {
     auto img = [](const torch::Tensor& x) { return x.defined() ? tensor_to_image(x[0].contiguous()) : Image(); };
     auto uv = [](const torch::Tensor& x) {  // [1,H,W,2] → 2-channel image
         return x.defined() ? tensor_to_image(x[0].permute({2, 0, 1}).contiguous()) : Image();

@@ -3,6 +3,7 @@
 // CPU twin (render/preview.h: layered disk-bokeh depth of field) with the inverse depth of
 // edit/depth.h and a lens from edit/focus.h. Used by `refocus export --what refocus`.
 #include "edit/depth.h"
+#include "fit/fit_model.h"
 #include "io/image.h"
 #include "render/preview.h"
 
@@ -18,6 +19,8 @@ struct FrameMaps {
 
 // Renders frame t (the engine locks its model for the render; no gradients).
 FrameMaps frame_maps(FitEngine& engine, int t);
+// The first frame of a rendered batch (e.g. after edit/atlas_edit.h apply_edits).
+FrameMaps frame_maps(const Layers& layers);
 
 // render_dof of m's layers with depth.frame_depth(t, ...) and `lens`. Aperture 0 gives the sharp
 // composite α·F + (1 − α)·B.

@@ -209,6 +209,9 @@ std::vector<std::string> export_pass(FitEngine& engine, const Project& project, 
     if (depth_pass && format != "exr" && format != "exr32")
         throw Error("--what depth holds inverse depth (px of blur at the clip's aperture): use --format exr");
     const FocusTrack track = read_focus(project);  // validate before the work
+    const ProjectEdits edits = ProjectEdits::load(project);  // repaints show refocused too
+    const auto [d_bg, d_fg] = edit_deltas(engine, depth_pass ? nullptr : &edits);
+    torch::NoGradGuard no_grad;
     const DepthModel depth = project_depth(engine, project.dir);
     ClipWriteOptions wo;
     wo.fps = project.fps;
@@ -216,7 +219,9 @@ std::vector<std::string> export_pass(FitEngine& engine, const Project& project, 
     const int threads = std::max(1, int(std::thread::hardware_concurrency()));
     const int frames = engine.data().frames;
     for (int t = 0; t < frames; ++t) {
-        const FrameMaps m = frame_maps(engine, t);
+        Layers L = engine.render_frame(t);
+        apply_edits(L, d_bg, d_fg);
+        const FrameMaps m = frame_maps(L);
         writer.write(depth_pass ? depth.depth_map(t, m.uv_bg, m.uv_fg, m.alpha)
                                 : render_refocused(m, depth, t, track.lens_at(t, &depth), threads));
         if (progress && !progress(t + 1, frames)) {
