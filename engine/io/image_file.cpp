@@ -1,6 +1,8 @@
 #include "io/image_file.h"
 
 #include <OpenImageIO/imageio.h>
+#include <fcntl.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -154,6 +156,15 @@ void write_image_file(const std::string& path, const Image& img, PixelFormat for
         std::error_code ec;
         fs::remove(tmp, ec);
         throw Error(file_error(path, "write failed: " + why));
+    }
+    // The data must be on disk before the rename publishes it (a crash leaves old or new).
+    const int fd = ::open(tmp.c_str(), O_RDONLY);
+    const bool synced = fd >= 0 && ::fsync(fd) == 0;
+    if (fd >= 0) ::close(fd);
+    if (!synced) {
+        std::error_code ec;
+        fs::remove(tmp, ec);
+        throw Error(file_error(path, "write failed: cannot sync the file to disk"));
     }
     commit_temp(tmp, target);
 }

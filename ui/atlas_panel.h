@@ -1,0 +1,83 @@
+#pragma once
+// The "Atlas" window: paint on the fitted atlases and see the edit follow every frame (paper
+// Fig. 1). Self-contained Dear ImGui window over a ProjectEdits (engine/edit/atlas_edit.h):
+// Background / Foreground tabs, the atlas (sRGB for display, uploaded only when it changed),
+// zoom (wheel) and pan (middle or right drag), brush (colour, size, hardness, opacity,
+// Paint / Erase / Clone with Alt+click for the source, eyedropper: I key or button), undo/redo
+// (buttons, Ctrl+Z, Ctrl+Shift+Z / Ctrl+Y), export and import of a layer.
+//
+// Use from the UI thread with a current GL context:
+//     AtlasPanel panel; panel.set_edits(&edits);
+//     panel.set_bases(bg, fg);            // whenever the fit's atlases change
+//     if (panel.draw()) reupload_preview_atlases(edits.bg.result(), ...);
+#include <array>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "edit/atlas_edit.h"
+
+namespace refocus {
+
+class AtlasPanel {
+public:
+    AtlasPanel() = default;
+    ~AtlasPanel();  // deletes its GL textures: destroy it while the context is current
+    AtlasPanel(const AtlasPanel&) = delete;
+    AtlasPanel& operator=(const AtlasPanel&) = delete;
+
+    void set_edits(ProjectEdits* edits);
+    // Optional: enables "Save edits" (edits/edit_*.exr + project.json).
+    void set_project(Project* project) { m_project = project; }
+    // The fit's atlases (linear RGB); `fg` empty with one layer. The edits are kept.
+    void set_bases(const Image& bg, const Image& fg);
+
+    // Draws the window; true when an edited result changed since the last draw() (strokes,
+    // undo, import, programmatic calls), so the caller re-uploads its preview atlases.
+    bool draw(bool* open = nullptr);
+
+    // Programmatic API (scripts, tests): layer 0 = background, 1 = foreground. Points in atlas
+    // px. Return false on failure with the message in error().
+    bool paint_stroke(int layer, const std::vector<std::array<float, 2>>& pts_atlas_px,
+                      const Brush& brush);
+    bool import_atlas(int layer, const std::string& path);
+    bool export_atlas(int layer, const std::string& path, PixelFormat format);
+    bool undo(int layer);
+    bool redo(int layer);
+
+    // Where atlas px (x, y) was drawn by the last draw(), in ImGui screen coordinates.
+    std::array<float, 2> atlas_to_screen(float x, float y) const {
+        return {m_origin[0] + x * m_scale, m_origin[1] + y * m_scale};
+    }
+    const std::string& error() const { return m_error; }
+    int active_layer() const { return m_layer; }
+    void set_active_layer(int layer) { m_layer = layer == 1 ? 1 : 0; }
+    Brush& brush() { return m_brush; }
+
+private:
+    AtlasEditor* editor(int layer);
+    bool guarded(const std::function<void()>& f);
+    void upload(int layer);
+    void draw_canvas(AtlasEditor& ed);
+    void draw_controls(AtlasEditor& ed);
+
+    ProjectEdits* m_edits = nullptr;
+    Project* m_project = nullptr;
+    int m_layer = 0;
+    Brush m_brush;
+    std::string m_error;
+    int64_t m_reported[2] = {-1, -1};  // version last reported by draw()
+
+    unsigned m_tex[2] = {0, 0};
+    int64_t m_tex_version[2] = {-1, -1};
+    float m_zoom = 1.0f, m_pan[2] = {0, 0};  // zoom relative to fit-in-window
+    float m_origin[2] = {0, 0}, m_scale = 1.0f;  // last drawn: screen = origin + atlas px · scale
+    bool m_painting = false, m_picking = false;
+    bool m_have_clone_src = false, m_clone_aligned = false;
+    float m_clone_src[2] = {0, 0};
+    char m_export_path[1024] = "atlas_edit.png";
+    char m_import_path[1024] = "";
+    int m_export_format = 0;  // PNG 8, TIFF 16, EXR
+};
+
+}  // namespace refocus
