@@ -122,11 +122,11 @@ int cmd_fit(int argc, char** argv) {
 
 int cmd_export(int argc, char** argv) {
     Args a(argc, argv, 2);
-    a.check_known({"what", "format", "out"});
+    a.check_known({"what", "format", "out", "first", "last"});
     if (a.positional().size() != 1 || !a.has("out"))
         throw Error("usage: refocus export <project> --what "
                     "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|all "
-                    "[--format png|exr|tiff|mp4] --out <dir-or-file>");
+                    "[--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>");
     Project project = Project::load(a.positional()[0]);
     PrepareLog log;
     auto engine = open_fitted(project, log);
@@ -152,9 +152,13 @@ int cmd_export(int argc, char** argv) {
             target = (fs::path(out) / export_pass_name(p)).string();
             if (format == "mp4") target += ".mp4";
         }
-        auto files = p == ExportPass::Refocus || p == ExportPass::Depth
-                         ? export_pass(*engine, project, p, format, target)
-                         : export_pass(*engine, p, format, target, project.fps, {}, &edits);
+        ExportOptions eo;
+        eo.fps = project.fps;
+        eo.project = &project;
+        eo.edits = &edits;
+        eo.first = a.get_int("first", 0);
+        eo.last = a.get_int("last", -1);
+        auto files = export_pass(*engine, p, format, target, eo);
         std::printf("%s: %zu file(s) in %s\n", export_pass_name(p), files.size(), target.c_str());
     }
     return 0;

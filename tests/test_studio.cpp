@@ -1,5 +1,9 @@
-// refocus-studio opens a project headless (Xvfb) and shows the frame at the playhead.
+// refocus-studio opens a project headless (Xvfb) and shows the frame at the playhead; a scripted
+// session drives the whole studio (tests/gui/smoke.json).
 #include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
 
 #include <nlohmann/json.hpp>
 
@@ -61,5 +65,81 @@ TEST_CASE("studio reports a bad project path and exits non-zero") {
                       "' --exit-after 2");
     CHECK(r.code != 0);
     CHECK(r.output.find("missing.mp4") != std::string::npos);
+}
+
+namespace {
+// Strongly red pixels (the smoke script paints a red stroke on the background atlas).
+int red_pixels(const Image& img, int x0, int y0, int w, int h) {
+    int n = 0;
+    for (int y = std::max(0, y0); y < std::min(img.height, y0 + h); ++y)
+        for (int x = std::max(0, x0); x < std::min(img.width, x0 + w); ++x)
+            n += img.at(x, y, 0) > 0.6f && img.at(x, y, 1) < 0.15f && img.at(x, y, 2) < 0.15f;
+    return n;
+}
+}  // namespace
+
+TEST_CASE("scripted studio session: new, fit, paint, keyframes, export, save, reopen") {
+    if (run("command -v xvfb-run").code != 0) {
+        MESSAGE("xvfb-run not installed: skipping");
+        return;
+    }
+    fs::path dir = scratch_dir("studio_smoke");
+    const std::string script = std::string(REFOCUS_SOURCE_DIR) + "/tests/gui/smoke.json";
+    RunResult r = run("cd '" + dir.string() + "' && XDG_CONFIG_HOME='" + dir.string() +
+                      "' REFOCUS_SOURCE_DIR='" + REFOCUS_SOURCE_DIR +
+                      "' xvfb-run -a -s '-screen 0 1280x800x24' " + std::string(REFOCUS_STUDIO) +
+                      " --size 1280x800 --script '" + script + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+
+    // Export: frames 0..2 of the sharp plate and of the refocused video, nothing more.
+    for (const char* what : {"sharp", "refocus"})
+        for (int i = 0; i < 4; ++i) {
+            const fs::path f = dir / "export" / what / (std::string(what) + "_000" + std::to_string(i) + ".png");
+            CHECK_MESSAGE(fs::exists(f) == (i < 3), f.string());
+        }
+    // The paint on the background atlas shows in the exported sharp frame, not in the input.
+    Image sharp = read_image_file((dir / "export/sharp/sharp_0000.png").string()).image;
+    Project p = Project::load(dir / "smoke_proj");
+    Image input = p.read_frame(0);
+    CHECK(red_pixels(sharp, 0, 0, sharp.width, sharp.height) > 200);
+    CHECK(red_pixels(input, 0, 0, input.width, input.height) < 20);
+    // Refocused frames differ from the sharp plate (aperture 1.5, focus keyed).
+    Image refocused = read_image_file((dir / "export/refocus/refocus_0002.png").string()).image;
+    Image sharp2 = read_image_file((dir / "export/sharp/sharp_0002.png").string()).image;
+    double diff = 0;
+    for (size_t i = 0; i < sharp2.pixels.size(); ++i) diff += std::abs(sharp2.pixels[i] - refocused.pixels[i]);
+    CHECK(diff / sharp2.pixels.size() > 0.005);
+
+    // Saved work: keyframes and edits in the project.
+    auto j = nlohmann::json::parse(read_text_file((dir / "smoke_proj/project.json").string()));
+    REQUIRE(j.contains("focus"));
+    CHECK(j["focus"]["focus"].size() == 2);  // the two click-to-focus keys
+    CHECK(fs::exists(dir / "smoke_proj/edits"));
+
+    // Screenshot of the sharp view at frame 0: the viewer shows the painted stroke.
+    auto meta = nlohmann::json::parse(read_text_file((dir / "shot_sharp.png.json").string()));
+    CHECK(meta["frame"] == 0);
+    CHECK(meta["mode"] == "sharp");
+    Image shot = read_image_file((dir / "shot_sharp.png").string(), false).image;
+    const int x0 = meta["image_rect"][0], y0 = meta["image_rect"][1];
+    const int w = meta["image_rect"][2], h = meta["image_rect"][3];
+    CHECK(w > 320);
+    CHECK(red_pixels(shot, x0, y0, w, h) > 200);
+    // The screen shows the exported frame: sample a grid of the image rectangle.
+    int close = 0, total = 0;
+    for (int y = 5; y < sharp.height; y += 20)
+        for (int x = 5; x < sharp.width; x += 20) {
+            const int sx = int(x0 + (x + 0.5) * w / sharp.width), sy = int(y0 + (y + 0.5) * h / sharp.height);
+            double d = 0;
+            for (int c = 0; c < 3; ++c)
+                d += std::abs(shot.at(sx, sy, c) - linear_to_srgb(sharp.at(x, y, c)));  // shot: sRGB
+            close += d / 3 < 0.08;
+            ++total;
+        }
+    CHECK(close > total * 0.9);
+    auto stats = nlohmann::json::parse(read_text_file((dir / "stats.json").string()));
+    MESSAGE("longest UI frame " << stats["longest_frame_ms"] << " ms, during the fit "
+                                << stats["longest_frame_during_fit_ms"] << " ms");
 }
 #endif

@@ -1,4 +1,6 @@
-// Refocus Studio: the window, the viewer with scrub and play, File > Open.
+// Refocus Studio: the window loop, the menus and the modal prompts. Panels live in
+// studio_panels.cpp, the viewer and timeline in studio_view.cpp, the test script in
+// studio_script.cpp.
 #include "studio.h"
 
 #include <GLFW/glfw3.h>
@@ -7,127 +9,135 @@
 #include <backends/imgui_impl_glfw.h>
 #include <backends/imgui_impl_opengl3.h>
 
-#include <nlohmann/json.hpp>
-
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
-#include <memory>
 
-#include "frame_source.h"
 #include "io/image_file.h"
+#include "studio_app.h"
+#include "studio_script.h"
 #include "util/error.h"
-#include "util/fs.h"
 
 namespace refocus {
 
-namespace {
-
-struct ViewerState {
-    std::unique_ptr<FrameSource> source;
-    int frame = 0;
-    int shown_frame = -1;
-    bool playing = false;
-    double play_clock = 0.0;
-    GLuint texture = 0;
-    float zoom = 0.0f;  // 0: fit to window
-    // Where the image was drawn last frame, in framebuffer pixels (for screenshots / tests).
-    float img_x = 0, img_y = 0, img_w = 0, img_h = 0;
-    std::string error;
-    char open_buf[1024] = {0};
-};
-
-void upload_frame(ViewerState& v) {
-    if (!v.source || v.shown_frame == v.frame) return;
-    const auto& px = v.source->rgba8(v.frame);
-    if (!v.texture) glGenTextures(1, &v.texture);
-    glBindTexture(GL_TEXTURE_2D, v.texture);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, v.source->width(), v.source->height(), 0, GL_RGBA,
-                 GL_UNSIGNED_BYTE, px.data());
-    v.shown_frame = v.frame;
+const char* view_mode_name(ViewMode m) {
+    switch (m) {
+        case ViewMode::Input: return "input";
+        case ViewMode::Sharp: return "sharp";
+        case ViewMode::Refocused: return "refocused";
+        case ViewMode::Split: return "split";
+        case ViewMode::Radius: return "radius";
+        case ViewMode::Depth: return "depth";
+        case ViewMode::Alpha: return "alpha";
+    }
+    return "?";
 }
 
-void open_source(ViewerState& v, const std::string& path) {
+ViewMode parse_view_mode(const std::string& n) {
+    for (ViewMode m : {ViewMode::Input, ViewMode::Sharp, ViewMode::Refocused, ViewMode::Split,
+                       ViewMode::Radius, ViewMode::Depth, ViewMode::Alpha})
+        if (n == view_mode_name(m)) return m;
+    throw Error("unknown view mode '" + n + "' (input, sharp, refocused, split, radius, depth, alpha)");
+}
+
+Studio::Studio(GLFWwindow* window, const StudioOptions& opts)
+    : m_window(window), m_opts(opts), m_worker(std::make_unique<FitWorker>()) {
     try {
-        auto src = std::make_unique<FrameSource>(path);
-        v.source = std::move(src);
-        v.frame = 0;
-        v.shown_frame = -1;
-        v.playing = false;
-        v.error.clear();
+        m_gl = std::make_unique<GlPreview>();
     } catch (const std::exception& e) {
-        v.error = e.what();
+        m_gl_error = e.what();  // the refocused view says why it is off
     }
+    m_atlas_panel.set_edits(&m_doc.edits());
 }
 
-void draw_viewer(ViewerState& v, float fb_scale) {
-    const ImGuiViewport* vp = ImGui::GetMainViewport();
-    ImGui::SetNextWindowPos(vp->WorkPos);
-    ImGui::SetNextWindowSize(vp->WorkSize);
-    ImGui::Begin("Viewer", nullptr,
-                 ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoMove |
-                     ImGuiWindowFlags_NoBringToFrontOnFocus | ImGuiWindowFlags_NoSavedSettings);
-    if (!v.source) {
-        ImGui::TextWrapped("No clip open. Use File > Open, or start refocus-studio <project-or-clip>.");
+Studio::~Studio() {
+    m_worker.reset();  // checkpoints a running fit
+    if (m_tex) glDeleteTextures(1, &m_tex);
+    if (m_slice_tex) glDeleteTextures(1, &m_slice_tex);
+}
+
+void Studio::after_open() {
+    m_source = std::make_unique<FrameSource>(m_doc.project().dir.string());
+    m_worker->open(m_doc.project());
+    m_atlas_panel.set_edits(&m_doc.edits());
+    m_frame = std::clamp(m_frame, 0, m_source->frames() - 1);
+    m_view.reset();
+    m_depth.reset();
+    m_depth_requested = false;
+    m_atlas_version = m_edit_version = -1;
+    m_requested_frame = -1;
+    m_view_dirty = m_slice_dirty = true;
+    m_exp_first = 0;
+    m_exp_last = m_source->frames() - 1;
+    const FitSettings s = read_fit_settings(m_doc.project());
+    const char* presets[] = {"fast", "paper", "perframe"};
+    for (int i = 0; i < 3; ++i)
+        if (s.fit.preset == presets[i]) m_preset = i;
+    if (s.fit.iters > 0 && s.fit.minutes <= 0) {
+        m_use_iters = true;
+        m_budget_iters = static_cast<int>(s.fit.iters);
+    } else if (s.fit.minutes > 0) {
+        m_budget_minutes = static_cast<float>(s.fit.minutes);
+    }
+    m_seed = static_cast<int>(s.fit.seed);
+    std::snprintf(m_coc_path, sizeof m_coc_path, "%s", s.setup.coc_path.c_str());
+    std::snprintf(m_mask_path, sizeof m_mask_path, "%s", s.setup.mask_path.c_str());
+    if (m_exp_out[0] == 0)
+        std::snprintf(m_exp_out, sizeof m_exp_out, "%s", (m_doc.project().dir / "export").string().c_str());
+    glfwSetWindowTitle(m_window, ("Refocus Studio - " + m_doc.project().dir.string()).c_str());
+}
+
+void Studio::open_project(const std::string& path) {
+    if (is_project_path(path)) {
+        m_doc.open(path);
+        after_open();
+        return;
+    }
+    // A plain clip: make a project beside it, named after it.
+    fs::path clip = fs::absolute(path);
+    if (!fs::exists(clip)) throw Error(file_error(path, "no such file or folder"));
+    fs::path dir = clip.parent_path() / (clip.stem().string() + "_refocus");
+    for (int i = 2; fs::exists(dir) && !is_project_path(dir.string()); ++i)
+        dir = clip.parent_path() / (clip.stem().string() + "_refocus" + std::to_string(i));
+    if (is_project_path(dir.string())) m_doc.open(dir.string());
+    else m_doc.create(clip.string(), dir.string());
+    after_open();
+}
+
+void Studio::new_project(const std::string& clip, const std::string& dir) {
+    m_doc.create(clip, dir);
+    after_open();
+}
+
+void Studio::save() {
+    if (!m_doc.is_open()) throw Error("no project is open");
+    m_doc.save();
+    m_info = "saved " + m_doc.project().project_file().string();
+}
+
+void Studio::save_as(const std::string& dir) {
+    if (!m_doc.is_open()) throw Error("no project is open");
+    m_worker->stop();
+    m_doc.save_as(dir);
+    after_open();
+    m_info = "saved as " + m_doc.project().dir.string();
+}
+
+void Studio::request_close() {
+    if (m_doc.dirty()) {
+        m_pending = Pending::Quit;
+        m_show_unsaved = true;
     } else {
-        FrameSource& s = *v.source;
-        ImGui::Text("%s   %dx%d   %d frames   %.2f fps", s.label().c_str(), s.width(), s.height(),
-                    s.frames(), s.fps());
-        const float controls_h = ImGui::GetFrameHeightWithSpacing() * 2.0f;
-        ImVec2 avail = ImGui::GetContentRegionAvail();
-        avail.y -= controls_h;
-        float scale = v.zoom > 0 ? v.zoom
-                                 : std::min(avail.x / s.width(), std::max(avail.y, 1.0f) / s.height());
-        ImVec2 size(s.width() * scale, s.height() * scale);
-        ImGui::BeginChild("image", ImVec2(avail.x, avail.y), false,
-                          ImGuiWindowFlags_HorizontalScrollbar);
-        ImVec2 cursor = ImGui::GetCursorScreenPos();
-        ImVec2 region = ImGui::GetContentRegionAvail();
-        ImVec2 offset(std::max(0.0f, (region.x - size.x) * 0.5f),
-                      std::max(0.0f, (region.y - size.y) * 0.5f));
-        ImGui::SetCursorScreenPos(ImVec2(cursor.x + offset.x, cursor.y + offset.y));
-        upload_frame(v);
-        ImVec2 pos = ImGui::GetCursorScreenPos();
-        ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<intptr_t>(v.texture)), size);
-        v.img_x = pos.x * fb_scale;
-        v.img_y = pos.y * fb_scale;
-        v.img_w = size.x * fb_scale;
-        v.img_h = size.y * fb_scale;
-        ImGui::EndChild();
-
-        if (ImGui::Button(v.playing ? "Pause" : "Play") ||
-            (ImGui::IsKeyPressed(ImGui::GetKeyIndex(ImGuiKey_Space)) && !ImGui::GetIO().WantTextInput)) {
-            v.playing = !v.playing;
-            v.play_clock = glfwGetTime();
-        }
-        ImGui::SameLine();
-        if (ImGui::Button("<")) v.frame = std::max(0, v.frame - 1);
-        ImGui::SameLine();
-        if (ImGui::Button(">")) v.frame = std::min(s.frames() - 1, v.frame + 1);
-        ImGui::SameLine();
-        ImGui::SetNextItemWidth(-1);
-        ImGui::SliderInt("##frame", &v.frame, 0, s.frames() - 1, "frame %d");
-        ImGui::SetNextItemWidth(160);
-        ImGui::SliderFloat("zoom (0 = fit)", &v.zoom, 0.0f, 8.0f, "%.2f");
-        if (v.playing) {
-            double now = glfwGetTime();
-            int steps = static_cast<int>((now - v.play_clock) * s.fps());
-            if (steps > 0) {
-                v.frame = (v.frame + steps) % s.frames();
-                v.play_clock += steps / s.fps();
-            }
-        }
+        m_quit = true;
     }
-    ImGui::End();
 }
 
-void write_screenshot(const std::string& path, int w, int h, const ViewerState& v) {
+void Studio::screenshot(const std::string& path) {
+    int w, h;
+    glfwGetFramebufferSize(m_window, &w, &h);
     std::vector<unsigned char> px(static_cast<size_t>(w) * h * 4);
     glPixelStorei(GL_PACK_ALIGNMENT, 1);
+    glReadBuffer(GL_BACK);
     glReadPixels(0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, px.data());
     Image img(w, h, 3);
     for (int y = 0; y < h; ++y)
@@ -135,13 +145,228 @@ void write_screenshot(const std::string& path, int w, int h, const ViewerState& 
             for (int c = 0; c < 3; ++c)
                 img.at(x, y, c) = px[(static_cast<size_t>(h - 1 - y) * w + x) * 4 + c] / 255.0f;
     write_image_file(path, img, PixelFormat::Png8, false);
+    int ww, wh;
+    glfwGetWindowSize(m_window, &ww, &wh);
+    const float s = ww > 0 ? float(w) / ww : 1.0f;
     nlohmann::json meta = {{"window", {w, h}},
-                           {"frame", v.frame},
-                           {"image_rect", {v.img_x, v.img_y, v.img_w, v.img_h}}};
+                           {"frame", m_frame},
+                           {"mode", view_mode_name(m_mode)},
+                           {"image_rect", {m_img_x * s, m_img_y * s, m_img_w * s, m_img_h * s}},
+                           {"longest_frame_ms", m_longest_frame_ms},
+                           {"longest_frame_during_fit_ms", m_longest_fit_frame_ms}};
     write_file_atomic(path + ".json", meta.dump(2));
 }
 
+void Studio::draw_menu() {
+    if (!ImGui::BeginMainMenuBar()) return;
+    if (ImGui::BeginMenu("File")) {
+        if (ImGui::MenuItem("New from clip...", "Ctrl+N")) m_show_new = true;
+        if (ImGui::MenuItem("Open...", "Ctrl+O")) m_show_open = true;
+        if (ImGui::BeginMenu("Open recent")) {
+            auto list = recent_projects();
+            if (list.empty()) ImGui::MenuItem("(none)", nullptr, false, false);
+            for (const auto& r : list)
+                if (ImGui::MenuItem(r.c_str())) {
+                    if (m_doc.dirty()) {
+                        m_pending = Pending::Open;
+                        m_pending_path = r;
+                        m_show_unsaved = true;
+                    } else {
+                        guarded([&] { open_project(r); });
+                    }
+                }
+            ImGui::EndMenu();
+        }
+        if (ImGui::MenuItem("Save", "Ctrl+S", false, m_doc.is_open())) guarded([&] { save(); });
+        if (ImGui::MenuItem("Save as...", "Ctrl+Shift+S", false, m_doc.is_open())) m_show_save_as = true;
+        ImGui::Separator();
+        if (ImGui::MenuItem("Quit", "Ctrl+Q")) request_close();
+        ImGui::EndMenu();
+    }
+    if (ImGui::BeginMenu("View")) {
+        for (ViewMode m : {ViewMode::Input, ViewMode::Sharp, ViewMode::Refocused, ViewMode::Split,
+                           ViewMode::Radius, ViewMode::Depth, ViewMode::Alpha})
+            if (ImGui::MenuItem(view_mode_name(m), nullptr, m_mode == m && !m_show_atlas)) {
+                m_mode = m;
+                m_show_atlas = false;
+                m_view_dirty = true;
+            }
+        ImGui::Separator();
+        ImGui::MenuItem("Atlas editor", "Tab", &m_show_atlas);
+        if (ImGui::MenuItem("Time slice", nullptr, &m_time_slice)) m_slice_dirty = true;
+        ImGui::EndMenu();
+    }
+    const auto st = m_worker->status();
+    ImGui::SameLine(ImGui::GetWindowWidth() - 420);
+    ImGui::TextDisabled("%s%s  |  fit: %s%s", m_doc.is_open() ? m_doc.project().name.c_str() : "",
+                        m_doc.dirty() ? " *" : "", state_name(st.state),
+                        st.busy ? ("  |  " + st.busy_what).c_str() : "");
+    ImGui::EndMainMenuBar();
+}
+
+namespace {
+bool path_popup(const char* title, const char* prompt, char* buf, size_t n, const char* ok) {
+    bool go = false;
+    if (ImGui::BeginPopupModal(title, nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
+        ImGui::TextUnformatted(prompt);
+        ImGui::SetNextItemWidth(520);
+        if (ImGui::IsWindowAppearing()) ImGui::SetKeyboardFocusHere();
+        go = ImGui::InputText("##path", buf, n, ImGuiInputTextFlags_EnterReturnsTrue);
+        go |= ImGui::Button(ok);
+        ImGui::SameLine();
+        if (ImGui::Button("Cancel") || go) ImGui::CloseCurrentPopup();
+        ImGui::EndPopup();
+    }
+    return go;
+}
 }  // namespace
+
+void Studio::draw_modals() {
+    auto open_popup = [](bool& flag, const char* name) {
+        if (flag) ImGui::OpenPopup(name);
+        flag = false;
+    };
+    open_popup(m_show_open, "Open project");
+    open_popup(m_show_new, "New project");
+    open_popup(m_show_save_as, "Save project as");
+    open_popup(m_show_unsaved, "Unsaved changes");
+    if (path_popup("Open project", "Project folder, or a clip (video, image folder or pattern):",
+                   m_path_buf, sizeof m_path_buf, "Open")) {
+        if (m_doc.dirty()) {
+            m_pending = Pending::Open;
+            m_pending_path = m_path_buf;
+            m_show_unsaved = true;
+        } else {
+            guarded([&] { open_project(m_path_buf); });
+        }
+    }
+    if (ImGui::BeginPopupModal("New project", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
+        ImGui::TextUnformatted("Clip (video file, image folder or printf pattern):");
+        ImGui::SetNextItemWidth(520);
+        ImGui::InputText("##clip", m_clip_buf, sizeof m_clip_buf);
+        ImGui::TextUnformatted("New project folder (created):");
+        ImGui::SetNextItemWidth(520);
+        ImGui::InputText("##dir", m_path_buf, sizeof m_path_buf);
+        if (ImGui::Button("Create")) {
+            ImGui::CloseCurrentPopup();
+            if (m_doc.dirty()) {
+                m_pending = Pending::New;
+                m_pending_clip = m_clip_buf;
+                m_pending_path = m_path_buf;
+                m_show_unsaved = true;
+            } else {
+                guarded([&] { new_project(m_clip_buf, m_path_buf); });
+            }
+        }
+        ImGui::SameLine();
+        if (ImGui::Button("Cancel")) ImGui::CloseCurrentPopup();
+        ImGui::EndPopup();
+    }
+    if (path_popup("Save project as", "New project folder (the project, its fit and edits are copied):",
+                   m_path_buf, sizeof m_path_buf, "Save"))
+        guarded([&] { save_as(m_path_buf); });
+    if (ImGui::BeginPopupModal("Unsaved changes", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
+        ImGui::Text("%s has unsaved changes (focus keyframes, atlas paint).",
+                    m_doc.is_open() ? m_doc.project().name.c_str() : "The project");
+        auto proceed = [&] {
+            const Pending p = m_pending;
+            m_pending = Pending::None;
+            if (p == Pending::Quit) m_quit = true;
+            if (p == Pending::Open) guarded([&] { open_project(m_pending_path); });
+            if (p == Pending::New) guarded([&] { new_project(m_pending_clip, m_pending_path); });
+        };
+        if (ImGui::Button("Save")) {
+            ImGui::CloseCurrentPopup();
+            bool ok = true;
+            try {
+                save();
+            } catch (const std::exception& e) {
+                ok = false;  // the error shows; nothing is closed
+                set_error(e.what());
+            }
+            if (ok) proceed();
+        }
+        ImGui::SameLine();
+        if (ImGui::Button("Discard")) {
+            ImGui::CloseCurrentPopup();
+            m_doc.discard_autosave();
+            proceed();
+        }
+        ImGui::SameLine();
+        if (ImGui::Button("Cancel")) {
+            m_pending = Pending::None;
+            ImGui::CloseCurrentPopup();
+        }
+        ImGui::EndPopup();
+    }
+    if (m_doc.is_open() && m_doc.has_newer_autosave()) ImGui::OpenPopup("Restore autosave");
+    if (ImGui::BeginPopupModal("Restore autosave", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
+        ImGui::TextUnformatted("This project has autosaved changes newer than its last save\n"
+                               "(the studio was closed without saving). Restore them?");
+        if (ImGui::Button("Restore")) {
+            guarded([&] { m_doc.restore_autosave(); });
+            m_view_dirty = true;
+            ImGui::CloseCurrentPopup();
+        }
+        ImGui::SameLine();
+        if (ImGui::Button("Discard")) {
+            m_doc.discard_autosave();
+            ImGui::CloseCurrentPopup();
+        }
+        ImGui::EndPopup();
+    }
+    if (!m_error.empty()) ImGui::OpenPopup("Error");
+    if (ImGui::BeginPopupModal("Error", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
+        ImGui::PushTextWrapPos(600);
+        ImGui::TextUnformatted(m_error.c_str());
+        ImGui::PopTextWrapPos();
+        if (ImGui::Button("OK")) {
+            m_error.clear();
+            ImGui::CloseCurrentPopup();
+        }
+        ImGui::EndPopup();
+    }
+}
+
+void Studio::frame() {
+    m_frame_start = glfwGetTime();
+    ImGuiIO& io = ImGui::GetIO();
+    if (!io.WantTextInput) {
+        const bool ctrl = io.KeyCtrl;
+        if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_S)) {
+            if (io.KeyShift) m_show_save_as = true;
+            else guarded([&] { save(); });
+        }
+        if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_O)) m_show_open = true;
+        if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_N)) m_show_new = true;
+        if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_Q)) request_close();
+        if (!ctrl && ImGui::IsKeyPressed(GLFW_KEY_TAB)) m_show_atlas = !m_show_atlas;
+        if (m_source && !m_show_atlas) {
+            if (ImGui::IsKeyPressed(GLFW_KEY_SPACE)) {
+                m_playing = !m_playing;
+                m_play_clock = glfwGetTime();
+            }
+            if (ImGui::IsKeyPressed(GLFW_KEY_LEFT)) set_frame(m_frame - 1);
+            if (ImGui::IsKeyPressed(GLFW_KEY_RIGHT)) set_frame(m_frame + 1);
+        }
+    }
+    if (glfwWindowShouldClose(m_window) && !m_quit) {
+        glfwSetWindowShouldClose(m_window, 0);
+        request_close();
+    }
+    poll_worker();
+    poll_export();
+    draw_menu();
+    draw_viewer();
+    draw_timeline();
+    draw_side_panel();
+    draw_modals();
+    if (m_doc.is_open()) guarded([&] {
+            if (m_doc.autosave_if_due(glfwGetTime())) m_info = "autosaved";
+        });
+}
+
+// ---- the window ----
 
 int run_studio(const StudioOptions& opts) {
     glfwSetErrorCallback([](int code, const char* msg) {
@@ -157,7 +382,7 @@ int run_studio(const StudioOptions& opts) {
         throw Error("cannot create an OpenGL 3.3 window");
     }
     glfwMakeContextCurrent(window);
-    glfwSwapInterval(1);
+    glfwSwapInterval(opts.script.empty() && opts.exit_after < 0 ? 1 : 0);
 
     IMGUI_CHECKVERSION();
     ImGui::CreateContext();
@@ -166,88 +391,66 @@ int run_studio(const StudioOptions& opts) {
     ImGui_ImplGlfw_InitForOpenGL(window, true);
     ImGui_ImplOpenGL3_Init("#version 330 core");
 
-    ViewerState v;
-    if (!opts.open_path.empty()) {
-        open_source(v, opts.open_path);
-        if (!v.error.empty() && opts.exit_after >= 0) {
-            std::fprintf(stderr, "refocus-studio: error: %s\n", v.error.c_str());
-            return 1;
+    int code = 0;
+    {
+        Studio studio(window, opts);
+        std::unique_ptr<StudioScript> script;
+        if (!opts.script.empty()) script = std::make_unique<StudioScript>(opts.script);
+        if (!opts.open_path.empty()) {
+            try {
+                studio.open_project(opts.open_path);
+                studio.set_frame(opts.start_frame);
+            } catch (const std::exception& e) {
+                if (opts.exit_after >= 0 || script) {
+                    std::fprintf(stderr, "refocus-studio: error: %s\n", e.what());
+                    code = 1;
+                    glfwSetWindowShouldClose(window, 1);
+                } else {
+                    studio.set_error_public(e.what());
+                }
+            }
         }
-        if (v.source) v.frame = std::clamp(opts.start_frame, 0, v.source->frames() - 1);
+        int rendered = 0;
+        while (code == 0 && !studio.want_close()) {
+            if (glfwGetWindowAttrib(window, GLFW_ICONIFIED)) {
+                glfwWaitEventsTimeout(0.1);  // minimised: sleep instead of drawing
+                continue;
+            }
+            glfwPollEvents();
+            ImGui_ImplOpenGL3_NewFrame();
+            ImGui_ImplGlfw_NewFrame();
+            ImGui::NewFrame();
+            studio.frame();
+            ImGui::Render();
+            int fbw, fbh;
+            glfwGetFramebufferSize(window, &fbw, &fbh);
+            glViewport(0, 0, fbw, fbh);
+            glClearColor(0.08f, 0.08f, 0.09f, 1.0f);
+            glClear(GL_COLOR_BUFFER_BIT);
+            ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+            studio.end_frame_timing();
+            ++rendered;
+            if (script) {
+                // Script steps run after the frame is drawn, so a screenshot shows it.
+                int rc = script->advance(studio);
+                if (rc >= 0) {
+                    code = rc;
+                    break;
+                }
+            }
+            if (opts.exit_after >= 0 && rendered >= opts.exit_after) {
+                if (!opts.screenshot.empty()) studio.screenshot(opts.screenshot);
+                break;
+            }
+            glfwSwapBuffers(window);
+        }
     }
-
-    int rendered = 0;
-    bool show_open = false;
-    while (!glfwWindowShouldClose(window)) {
-        if (glfwGetWindowAttrib(window, GLFW_ICONIFIED)) {
-            glfwWaitEventsTimeout(0.1);  // minimised: sleep instead of drawing
-            continue;
-        }
-        glfwPollEvents();
-        ImGui_ImplOpenGL3_NewFrame();
-        ImGui_ImplGlfw_NewFrame();
-        ImGui::NewFrame();
-
-        if (ImGui::BeginMainMenuBar()) {
-            if (ImGui::BeginMenu("File")) {
-                if (ImGui::MenuItem("Open...", "Ctrl+O")) show_open = true;
-                if (ImGui::MenuItem("Quit", "Ctrl+Q")) glfwSetWindowShouldClose(window, 1);
-                ImGui::EndMenu();
-            }
-            ImGui::EndMainMenuBar();
-        }
-        int fbw, fbh, ww, wh;
-        glfwGetFramebufferSize(window, &fbw, &fbh);
-        glfwGetWindowSize(window, &ww, &wh);
-        draw_viewer(v, ww > 0 ? float(fbw) / ww : 1.0f);
-
-        if (show_open) {
-            ImGui::OpenPopup("Open");
-            show_open = false;
-        }
-        if (ImGui::BeginPopupModal("Open", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-            ImGui::Text("Project folder, video file or image sequence (folder or pattern):");
-            ImGui::SetNextItemWidth(500);
-            bool go = ImGui::InputText("##path", v.open_buf, sizeof v.open_buf,
-                                       ImGuiInputTextFlags_EnterReturnsTrue);
-            if (ImGui::Button("Open") || go) {
-                open_source(v, v.open_buf);
-                ImGui::CloseCurrentPopup();
-            }
-            ImGui::SameLine();
-            if (ImGui::Button("Cancel")) ImGui::CloseCurrentPopup();
-            ImGui::EndPopup();
-        }
-        if (!v.error.empty()) ImGui::OpenPopup("Error");
-        if (ImGui::BeginPopupModal("Error", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-            ImGui::TextWrapped("%s", v.error.c_str());
-            if (ImGui::Button("OK")) {
-                v.error.clear();
-                ImGui::CloseCurrentPopup();
-            }
-            ImGui::EndPopup();
-        }
-
-        ImGui::Render();
-        glViewport(0, 0, fbw, fbh);
-        glClearColor(0.08f, 0.08f, 0.09f, 1.0f);
-        glClear(GL_COLOR_BUFFER_BIT);
-        ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
-        ++rendered;
-        if (opts.exit_after >= 0 && rendered >= opts.exit_after) {
-            if (!opts.screenshot.empty()) write_screenshot(opts.screenshot, fbw, fbh, v);
-            glfwSetWindowShouldClose(window, 1);
-        }
-        glfwSwapBuffers(window);
-    }
-
-    if (v.texture) glDeleteTextures(1, &v.texture);
     ImGui_ImplOpenGL3_Shutdown();
     ImGui_ImplGlfw_Shutdown();
     ImGui::DestroyContext();
     glfwDestroyWindow(window);
     glfwTerminate();
-    return 0;
+    return code;
 }
 
 }  // namespace refocus

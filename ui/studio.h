@@ -8,6 +8,7 @@ struct StudioOptions {
     std::string screenshot;   // write a PNG of the window after `exit_after` frames
     int exit_after = -1;      // close after this many rendered UI frames (-1: run until closed)
     int start_frame = 0;
+    std::string script;       // a JSON list of actions to run, then exit (tests/gui/smoke.json)
     int width = 1280, height = 800;
 };
 

@@ -115,16 +115,14 @@ std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const Pro
 }  // namespace
 
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
-                                     const std::string& out, double fps,
-                                     const std::function<bool(int, int)>& progress,
-                                     const ProjectEdits* edits) {
+                                     const std::string& out, const ExportOptions& o) {
     const std::string name = export_pass_name(pass);
-    if (pass == ExportPass::Refocus || pass == ExportPass::Depth)
-        throw Error("--what " + name + " needs the project (its depth and focus keys)");
-    const bool data_pass = pass == ExportPass::Coc || pass == ExportPass::Uv;
+    const bool data_pass = pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth;
     if (data_pass && format != "exr" && format != "exr32")
-        throw Error("--what " + name + " holds values in px / atlas coordinates: use --format exr");
-    const auto [d_bg, d_fg] = edit_deltas(engine, edits);
+        throw Error("--what " + name + " holds values in px / atlas coordinates / inverse depth: use --format exr");
+    const bool needs_project = pass == ExportPass::Refocus || pass == ExportPass::Depth;
+    if (needs_project && !o.project) throw Error("--what " + name + " needs the project (its depth and focus keys)");
+    const auto [d_bg, d_fg] = edit_deltas(engine, pass == ExportPass::Depth ? nullptr : o.edits);
 
     if (pass == ExportPass::Atlas) {
         if (format == "mp4") throw Error("an atlas is an image: use --format png, tiff or exr");
@@ -147,84 +145,57 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
         return files;
     }
 
+    const FitData& d = engine.data();
+    const int first = o.first, last = o.last < 0 ? d.frames - 1 : o.last;
+    if (first < 0 || first > last || last >= d.frames)
+        throw Error("frame range " + std::to_string(first) + ".." + std::to_string(last) +
+                    " is not inside the clip's frames 0.." + std::to_string(d.frames - 1));
+    // Refocus / depth: validate the focus keys and fit (or load) the depth before the work.
+    FocusTrack track;
+    DepthModel depth;
+    if (needs_project) {
+        track = o.focus ? *o.focus : read_focus(*o.project);
+        depth = project_depth(engine, o.project->dir);
+    }
+    const int threads = std::max(1, int(std::thread::hardware_concurrency()));
+
     ClipWriteOptions wo;
-    wo.fps = fps;
+    wo.fps = o.fps;
     wo.srgb_encode = !(pass == ExportPass::Alpha);
     const ClipFormat cf = parse_clip_format(format == "exr" && data_pass ? "exr32" : format);
     ClipWriter writer(out, name, cf, wo);
-    const FitData& d = engine.data();
-    for (int t = 0; t < d.frames; ++t) {
+    torch::NoGradGuard no_grad;
+    for (int t = first; t <= last; ++t) {
         Layers L = engine.render_frame(t);
         apply_edits(L, d_bg, d_fg);
-        torch::Tensor img;
-        switch (pass) {
-            case ExportPass::Sharp: img = L.sharp[0]; break;
-            case ExportPass::Reblur: {
-                torch::NoGradGuard g;
-                img = engine.reblur(L, {t})[0];
-                break;
-            }
-            case ExportPass::Alpha:
-                img = L.alpha.defined() ? L.alpha[0] : torch::zeros({1, d.height, d.width});
-                if (cf == ClipFormat::Mp4) img = img.expand({3, d.height, d.width});
-                break;
-            case ExportPass::Coc: img = d.radius[t].unsqueeze(0); break;
-            case ExportPass::Uv: {
-                auto uv = L.uv_bg[0].permute({2, 0, 1});  // [2,H,W] in [-1,1]
-                if (L.uv_fg.defined()) uv = torch::cat({uv, L.uv_fg[0].permute({2, 0, 1})}, 0);
-                img = uv;
-                break;
-            }
-            case ExportPass::Atlas:
-            case ExportPass::Refocus:
-            case ExportPass::Depth: break;
-        }
-        Image frame = tensor_to_image(img.contiguous());
-        if (frame.channels == 2 || frame.channels == 4) {
-            // UV: (u, v[, u_fg, v_fg]) → RGB(A)-compatible layouts: pad 2 → 3 channels.
-            if (frame.channels == 2) {
-                Image f3(frame.width, frame.height, 3);
-                for (size_t i = 0; i < size_t(frame.width) * frame.height; ++i) {
-                    f3.pixels[3 * i] = frame.pixels[2 * i];
-                    f3.pixels[3 * i + 1] = frame.pixels[2 * i + 1];
+        Image frame;
+        if (needs_project) {
+            const FrameMaps m = frame_maps(L);
+            frame = pass == ExportPass::Depth ? depth.depth_map(t, m.uv_bg, m.uv_fg, m.alpha)
+                                              : render_refocused(m, depth, t, track.lens_at(t, &depth), threads);
+        } else {
+            torch::Tensor img;
+            switch (pass) {
+                case ExportPass::Sharp: img = L.sharp[0]; break;
+                case ExportPass::Reblur: img = engine.reblur(L, {t})[0]; break;
+                case ExportPass::Alpha:
+                    img = L.alpha.defined() ? L.alpha[0] : torch::zeros({1, d.height, d.width});
+                    if (cf == ClipFormat::Mp4) img = img.expand({3, d.height, d.width});
+                    break;
+                case ExportPass::Coc: img = d.radius[t].unsqueeze(0); break;
+                case ExportPass::Uv: {
+                    // (u, v[, u_fg, v_fg]) in [-1, 1]; 2 channels are padded to 3 (RGB layouts).
+                    img = L.uv_bg[0].permute({2, 0, 1});
+                    if (L.uv_fg.defined()) img = torch::cat({img, L.uv_fg[0].permute({2, 0, 1})}, 0);
+                    if (img.size(0) == 2) img = torch::cat({img, torch::zeros_like(img[0]).unsqueeze(0)}, 0);
+                    break;
                 }
-                frame = f3;
+                default: break;
             }
+            frame = tensor_to_image(img.contiguous());
         }
         writer.write(frame);
-        if (progress && !progress(t + 1, d.frames)) {
-            writer.cancel();
-            throw Error("export cancelled");
-        }
-    }
-    return writer.finish();
-}
-
-std::vector<std::string> export_pass(FitEngine& engine, const Project& project, ExportPass pass,
-                                     const std::string& format, const std::string& out,
-                                     const std::function<bool(int, int)>& progress) {
-    if (pass != ExportPass::Refocus && pass != ExportPass::Depth)
-        return export_pass(engine, pass, format, out, project.fps, progress);
-    const bool depth_pass = pass == ExportPass::Depth;
-    if (depth_pass && format != "exr" && format != "exr32")
-        throw Error("--what depth holds inverse depth (px of blur at the clip's aperture): use --format exr");
-    const FocusTrack track = read_focus(project);  // validate before the work
-    const ProjectEdits edits = ProjectEdits::load(project);  // repaints show refocused too
-    const auto [d_bg, d_fg] = edit_deltas(engine, depth_pass ? nullptr : &edits);
-    torch::NoGradGuard no_grad;
-    const DepthModel depth = project_depth(engine, project.dir);
-    ClipWriteOptions wo;
-    wo.fps = project.fps;
-    ClipWriter writer(out, export_pass_name(pass), parse_clip_format(depth_pass ? "exr32" : format), wo);
-    const int threads = std::max(1, int(std::thread::hardware_concurrency()));
-    const int frames = engine.data().frames;
-    for (int t = 0; t < frames; ++t) {
-        Layers L = engine.render_frame(t);
-        apply_edits(L, d_bg, d_fg);
-        const FrameMaps m = frame_maps(L);
-        writer.write(depth_pass ? depth.depth_map(t, m.uv_bg, m.uv_fg, m.alpha)
-                                : render_refocused(m, depth, t, track.lens_at(t, &depth), threads));
-        if (progress && !progress(t + 1, frames)) {
+        if (o.progress && !o.progress(t - first + 1, last - first + 1)) {
             writer.cancel();
             throw Error("export cancelled");
         }

@@ -33,22 +33,27 @@ enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv, Refocus, Depth };
 ExportPass parse_export_pass(const std::string& name);
 const char* export_pass_name(ExportPass p);
 
-// Writes one pass. Sequences go to `out` (a folder) as <what>_%04d.<ext> from 0; mp4 to `out`
-// (a file). `progress(done, total)` may return false to cancel (what was written is removed).
-// Returns the files written. `edits` (the project's atlas edits, may be null) show in the atlas
-// and in every rendered frame (sharp, reblur): paper Fig. 1.
-std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
-                                     const std::string& out, double fps,
-                                     const std::function<bool(int, int)>& progress = {},
-                                     const ProjectEdits* edits = nullptr);
+struct FocusTrack;  // edit/focus.h
 
-// Any pass, including those that need the project (edit/): Refocus (the refocused frames: the
-// project's "focus" section, edit/focus.h, through the preview's CPU twin with <project>/depth,
-// built and saved when missing or stale) and Depth (EXR only, 1 channel: the visible surface's
-// inverse depth, the foreground where alpha > 1/2; edit/depth.h). Other passes go to the
-// overload above with the project's fps.
-std::vector<std::string> export_pass(FitEngine& engine, const Project& project, ExportPass pass,
-                                     const std::string& format, const std::string& out,
-                                     const std::function<bool(int, int)>& progress = {});
+struct ExportOptions {
+    double fps = 24.0;
+    // The project: needed by Refocus (its "focus" section, edit/focus.h, and <project>/depth,
+    // built and saved when missing or stale) and Depth.
+    const Project* project = nullptr;
+    const ProjectEdits* edits = nullptr;  // atlas edits (paper Fig. 1); null: none
+    const FocusTrack* focus = nullptr;    // focus keys to use instead of the project's section
+    int first = 0, last = -1;             // frames first..last (-1: the last frame)
+    std::function<bool(int, int)> progress;  // (done, total); false cancels
+};
+
+// Writes one pass. Sequences go to `out` (a folder) as <what>_%04d.<ext> numbered from 0 (the
+// range's first frame is file 0); mp4 to `out` (a file). A cancelled or failed export removes
+// what it wrote: files are complete or absent. Edits show in the atlas and in every rendered
+// frame (sharp, reblur, refocus). Refocus: the frames through the preview's CPU twin
+// (render/preview.h) with the focus keys and the depth model; Depth (EXR only, 1 channel): the
+// visible surface's inverse depth, the foreground where alpha > 1/2 (edit/depth.h).
+// Returns the files written.
+std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
+                                     const std::string& out, const ExportOptions& opts);
 
 }  // namespace refocus

@@ -1,0 +1,396 @@
+#include "fit_worker.h"
+
+#include <torch/torch.h>
+
+#include <chrono>
+
+#include "fit/tensor_image.h"
+#include "util/error.h"
+
+namespace refocus {
+
+const char* state_name(FitWorker::State s) {
+    switch (s) {
+        case FitWorker::State::Empty: return "no project";
+        case FitWorker::State::Preparing: return "preparing";
+        case FitWorker::State::Unfitted: return "not fitted";
+        case FitWorker::State::Ready: return "fitted";
+        case FitWorker::State::Fitting: return "fitting";
+        case FitWorker::State::Paused: return "paused";
+        case FitWorker::State::Failed: return "failed";
+    }
+    return "?";
+}
+
+FitWorker::FitWorker() { m_thread = std::thread([this] { loop(); }); }
+
+FitWorker::~FitWorker() {
+    stop();
+    {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_quit = true;
+    }
+    m_cv.notify_all();
+    m_thread.join();
+}
+
+void FitWorker::add_log(const std::string& line) {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_status.log.push_back(line);
+    if (m_status.log.size() > 500) m_status.log.erase(m_status.log.begin());
+}
+
+void FitWorker::set_state(State s) {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_status.state = s;
+}
+
+void FitWorker::set_job_progress(double p) {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_status.job_progress = p;
+}
+
+void FitWorker::post_result(const std::string& r) {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_result = r;
+    m_status.log.push_back(r);
+}
+
+std::optional<std::string> FitWorker::take_result() {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    auto r = std::move(m_result);
+    m_result.reset();
+    return r;
+}
+
+FitWorker::Status FitWorker::status() const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    return m_status;
+}
+
+bool FitWorker::has_engine() const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    return m_status.state == State::Ready || m_status.state == State::Fitting ||
+           m_status.state == State::Paused;
+}
+
+bool FitWorker::has_checkpoint() const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    return m_has_checkpoint;
+}
+
+FitSettings FitWorker::settings() const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    return m_settings;
+}
+
+std::string FitWorker::project_dir() const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    return m_project ? m_project->dir.string() : std::string();
+}
+
+std::shared_ptr<const DepthModel> FitWorker::depth() const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    return m_depth;
+}
+
+void FitWorker::post(const std::string& what, Job job) {
+    {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_jobs.emplace_back(what, std::move(job));
+    }
+    m_cv.notify_all();
+}
+
+void FitWorker::run_job(const std::string& what, const Job& job) {
+    {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_status.busy = true;
+        m_status.busy_what = what;
+        m_status.job_progress = 0.0;
+    }
+    m_cancel = false;
+    try {
+        static const Project kNone;
+        job(m_engine.get(), m_project ? *m_project : kNone);
+    } catch (const std::exception& e) {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_status.error = what + ": " + e.what();
+        m_status.log.push_back("error: " + m_status.error);
+    }
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_status.busy = false;
+    m_status.busy_what.clear();
+}
+
+void FitWorker::open(const Project& project) {
+    stop();
+    post("open", [this, project](FitEngine*, const Project&) {
+        m_engine.reset();
+        {
+            std::lock_guard<std::mutex> lk(m_mutex);
+            m_project = std::make_unique<Project>(project);
+            m_settings = read_fit_settings(project);
+            m_has_checkpoint = FitEngine::has_checkpoint(fit_dir(project));
+            m_depth.reset();
+            m_depth_step = -1;
+            m_status = Status{};
+            m_status.state = State::Preparing;
+        }
+        add_log("opened " + project.dir.string());
+        if (!m_has_checkpoint) {
+            set_state(State::Unfitted);
+            add_log("not fitted yet: choose a preset and a budget, then Fit");
+            return;
+        }
+        try {
+            PrepareLog log([this](const std::string& l) { add_log(l); });
+            m_engine = open_fitted(project, log);
+            std::lock_guard<std::mutex> lk(m_mutex);
+            m_status.snap = m_engine->snapshot();
+            m_status.state = State::Ready;
+        } catch (...) {
+            set_state(State::Failed);
+            throw;
+        }
+        add_log("loaded checkpoint at step " + std::to_string(m_engine->snapshot().step));
+    });
+}
+
+void FitWorker::close() {
+    stop();
+    post("close", [this](FitEngine*, const Project&) {
+        m_engine.reset();
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_project.reset();
+        m_depth.reset();
+        m_status = Status{};
+    });
+}
+
+void FitWorker::start(const FitSettings& settings, bool resume) {
+    post("start fit", [this, settings, resume](FitEngine*, const Project&) {
+        if (!m_project) throw Error("no project is open");
+        const bool same_setup = m_engine && settings.setup.coc_path == m_settings.setup.coc_path &&
+                                settings.setup.mask_path == m_settings.setup.mask_path;
+        std::shared_ptr<FitData> data;
+        set_state(State::Preparing);
+        if (same_setup) {
+            data = std::make_shared<FitData>(m_engine->data());
+        } else {
+            PrepareLog log([this](const std::string& l) { add_log(l); });
+            data = build_fit_data(*m_project, settings.setup, log);
+        }
+        FitSettings s = settings;
+        const fs::path dir = fit_dir(*m_project);
+        const bool can_resume = resume && FitEngine::has_checkpoint(dir);
+        std::unique_ptr<FitEngine> engine;
+        if (can_resume) {
+            // The budget counts from where the checkpoint stopped.
+            auto probe = std::make_unique<FitEngine>(data, s.fit);
+            probe->load_checkpoint(dir);
+            const FitSnapshot at = probe->snapshot();
+            if (s.fit.minutes > 0) s.fit.minutes += at.elapsed_s / 60.0;
+            if (s.fit.iters > 0) s.fit.iters += at.step;
+            probe.reset();
+            engine = std::make_unique<FitEngine>(data, s.fit);
+            engine->load_checkpoint(dir);
+            add_log("resuming from step " + std::to_string(at.step));
+        } else {
+            engine = std::make_unique<FitEngine>(data, s.fit);
+            add_log("fitting from scratch: preset " + s.fit.preset);
+        }
+        write_fit_settings(*m_project, s, nullptr);
+        m_engine = std::move(engine);
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_settings = s;
+        m_fitting = true;
+        m_status.state = State::Fitting;
+        m_status.history.clear();
+    });
+}
+
+void FitWorker::set_paused(bool paused) {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    if (!m_fitting) return;
+    m_status.state = paused ? State::Paused : State::Fitting;
+    m_cv.notify_all();
+}
+
+void FitWorker::stop() {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    if (!m_fitting) return;
+    m_jobs.emplace_front("stop fit", [this](FitEngine*, const Project&) { end_fit("stopped"); });
+    m_cv.notify_all();
+}
+
+void FitWorker::end_fit(const std::string& why) {
+    if (!m_engine) return;
+    {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        if (!m_fitting) return;
+        m_fitting = false;
+    }
+    m_engine->request_stop();
+    m_engine->save_checkpoint(fit_dir(*m_project));
+    const FitSnapshot s = m_engine->snapshot();
+    write_fit_settings(*m_project, m_settings, &s);
+    add_log(why + " at step " + std::to_string(s.step) + ", checkpoint saved");
+    // A stopped engine refuses more steps; keep the fitted state for rendering.
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_has_checkpoint = true;
+    m_status.snap = s;
+    m_status.state = State::Ready;
+}
+
+void FitWorker::fit_step() {
+    m_engine->step();
+    const FitSnapshot s = m_engine->snapshot();
+    if (m_engine->maybe_checkpoint(fit_dir(*m_project))) {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_has_checkpoint = true;
+    }
+    {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_status.snap = s;
+        auto& h = m_status.history;
+        h.push_back(s);
+        if (h.size() > 4000) {  // keep every other old entry: bounded, whole curve kept
+            std::vector<FitSnapshot> thin;
+            for (size_t i = 0; i < h.size(); i += 2) thin.push_back(h[i]);
+            h.swap(thin);
+        }
+    }
+    if (m_engine->done()) end_fit("budget used");
+}
+
+void FitWorker::request_frame(int t) {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_frame_request = t;
+    m_cv.notify_all();
+}
+
+std::optional<FitWorker::ViewFrame> FitWorker::take_frame() {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    auto r = std::move(m_frame_result);
+    m_frame_result.reset();
+    return r;
+}
+
+void FitWorker::request_atlases() {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_atlas_request = true;
+    m_cv.notify_all();
+}
+
+std::optional<FitWorker::Atlases> FitWorker::take_atlases() {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    auto r = std::move(m_atlas_result);
+    m_atlas_result.reset();
+    return r;
+}
+
+void FitWorker::request_depth(bool rebuild) {
+    post("depth", [this, rebuild](FitEngine* engine, const Project& p) {
+        if (!engine) throw Error("fit the project first: the depth comes from the fitted layers");
+        const int64_t step = engine->snapshot().step;
+        if (!rebuild && m_depth && m_depth_step == step) return;
+        const fs::path dir = depth_dir(p.dir);
+        std::shared_ptr<DepthModel> d;
+        if (!rebuild && DepthModel::exists(dir)) {
+            try {
+                auto loaded = std::make_shared<DepthModel>(DepthModel::load(dir));
+                if (loaded->fit_step == step) d = loaded;  // fitted on this very checkpoint
+            } catch (const std::exception& e) {
+                add_log(std::string("depth/ unreadable, fitting it again: ") + e.what());
+            }
+        }
+        if (!d) {
+            add_log("fitting depth to the radius maps ...");
+            d = std::make_shared<DepthModel>(build_depth(*engine));
+            d->fit_step = step;
+            d->save(dir);
+            char b[96];
+            std::snprintf(b, sizeof b, "depth fitted: rms %.2f px", d->rms_px);
+            add_log(b);
+        }
+        std::lock_guard<std::mutex> lk(m_mutex);
+        m_depth = d;
+        m_depth_step = step;
+    });
+}
+
+void FitWorker::loop() {
+    while (true) {
+        std::unique_lock<std::mutex> lk(m_mutex);
+        m_cv.wait(lk, [&] {
+            return m_quit || !m_jobs.empty() || m_frame_request || m_atlas_request ||
+                   (m_fitting && m_status.state == State::Fitting);
+        });
+        if (m_quit) break;
+        if (!m_jobs.empty()) {
+            auto job = std::move(m_jobs.front());
+            m_jobs.pop_front();
+            lk.unlock();
+            run_job(job.first, job.second);
+            continue;
+        }
+        if (m_frame_request) {
+            const int t = *m_frame_request;
+            m_frame_request.reset();
+            lk.unlock();
+            if (!m_engine) continue;
+            try {
+                ViewFrame v;
+                v.t = t;
+                v.maps = frame_maps(*m_engine, t);
+                v.radius = tensor_to_image(m_engine->data().radius[t].contiguous());
+                v.atlas_version = m_engine->snapshot().atlas_version;
+                std::lock_guard<std::mutex> l2(m_mutex);
+                m_frame_result = std::move(v);
+            } catch (const std::exception& e) {
+                std::lock_guard<std::mutex> l2(m_mutex);
+                m_status.error = std::string("render frame: ") + e.what();
+            }
+            continue;
+        }
+        if (m_atlas_request) {
+            m_atlas_request = false;
+            lk.unlock();
+            if (!m_engine || m_engine->options().preset == "perframe") continue;
+            Atlases a;
+            {
+                std::lock_guard<std::mutex> ml(m_engine->model_mutex());
+                torch::NoGradGuard g;
+                a.bg = tensor_to_image(m_engine->model().atlas_bg().clamp_min(0).contiguous());
+                torch::Tensor fg = m_engine->model().atlas_fg();
+                if (fg.defined()) a.fg = tensor_to_image(fg.clamp_min(0).contiguous());
+            }
+            a.version = m_engine->snapshot().atlas_version;
+            std::lock_guard<std::mutex> l2(m_mutex);
+            m_atlas_result = std::move(a);
+            continue;
+        }
+        lk.unlock();
+        try {
+            fit_step();
+        } catch (const std::exception& e) {
+            {
+                std::lock_guard<std::mutex> l2(m_mutex);
+                m_fitting = false;
+                m_status.state = State::Failed;
+                m_status.error = std::string("fit: ") + e.what();
+            }
+            add_log("error: fit: " + std::string(e.what()));
+        }
+    }
+    // Leaving: a fit in progress keeps its work.
+    if (m_fitting && m_engine) {
+        try {
+            end_fit("closed");
+        } catch (...) {
+        }
+    }
+}
+
+}  // namespace refocus

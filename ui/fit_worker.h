@@ -1,0 +1,122 @@
+#pragma once
+// The studio's background thread (DESIGN.md "threads"): it owns the project's FitEngine, runs the
+// fit step by step, and renders what the UI asks for (a frame's layers, the atlases, the depth
+// model) between two steps, so the UI thread never waits on LibTorch. The UI posts requests and
+// picks up results from mailboxes; nothing here touches GL or ImGui.
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "edit/depth.h"
+#include "edit/recompose.h"
+#include "fit/fit_session.h"
+
+namespace refocus {
+
+class FitWorker {
+public:
+    enum class State { Empty, Preparing, Unfitted, Ready, Fitting, Paused, Failed };
+
+    struct Status {
+        State state = State::Empty;
+        FitSnapshot snap;
+        std::vector<FitSnapshot> history;  // one entry per step (thinned when long)
+        std::vector<std::string> log;
+        std::string error;                 // last error (kept until the next request)
+        bool busy = false;                 // a job is running (prepare, render, export)
+        std::string busy_what;
+        double job_progress = 0.0;         // 0..1 of the running job when it reports one
+    };
+
+    FitWorker();
+    ~FitWorker();  // stops a running fit (checkpointing it) and joins
+    FitWorker(const FitWorker&) = delete;
+    FitWorker& operator=(const FitWorker&) = delete;
+
+    // Opens `project`: prepares its data and loads its last checkpoint when there is one.
+    void open(const Project& project);
+    void close();
+    // Starts (or, with `resume` and a checkpoint, continues) a fit with these settings. The
+    // settings are written into project.json's "fit" section.
+    void start(const FitSettings& settings, bool resume);
+    void set_paused(bool paused);
+    void stop();  // the fit stops after its current step and is checkpointed
+
+    // Rendering, answered on the worker thread; the newest answer waits in a mailbox.
+    struct ViewFrame {
+        int t = 0;
+        FrameMaps maps;
+        Image radius;  // 1 channel, px: the radius the fit uses at this frame
+        int64_t atlas_version = 0;
+    };
+    void request_frame(int t);
+    std::optional<ViewFrame> take_frame();
+    void request_atlases();
+    struct Atlases {
+        Image bg, fg;
+        int64_t version = 0;
+    };
+    std::optional<Atlases> take_atlases();
+    // Depth model: loaded from <project>/depth/ when it matches the checkpoint, else fitted and
+    // saved there.
+    void request_depth(bool rebuild = false);
+    std::shared_ptr<const DepthModel> depth() const;
+
+    // Runs `job` on the worker thread with the engine (nullptr when none is open). `progress`
+    // may be called from the job; `cancelled()` is true after cancel_job().
+    using Job = std::function<void(FitEngine* engine, const Project& project)>;
+    void post(const std::string& what, Job job);
+    void cancel_job() { m_cancel = true; }
+    bool cancelled() const { return m_cancel; }
+    void set_job_progress(double p);
+    // A job's one-line outcome, for the UI to pick up (export results).
+    void post_result(const std::string& r);
+    std::optional<std::string> take_result();
+
+    Status status() const;
+    bool has_engine() const;
+    bool has_checkpoint() const;
+    FitSettings settings() const;
+    std::string project_dir() const;
+
+private:
+    void loop();
+    void run_job(const std::string& what, const Job& job);
+    void add_log(const std::string& line);
+    void set_state(State s);
+    void fit_step();
+    void end_fit(const std::string& why);
+
+    std::thread m_thread;
+    mutable std::mutex m_mutex;  // guards everything below except the engine
+    std::condition_variable m_cv;
+    std::deque<std::pair<std::string, Job>> m_jobs;
+    bool m_quit = false;
+    bool m_fitting = false;
+    std::atomic<bool> m_cancel{false};
+    Status m_status;
+
+    // Owned by the worker thread (set through jobs).
+    std::unique_ptr<Project> m_project;
+    std::unique_ptr<FitEngine> m_engine;
+    FitSettings m_settings;
+    bool m_has_checkpoint = false;
+
+    std::optional<int> m_frame_request;
+    std::optional<ViewFrame> m_frame_result;
+    bool m_atlas_request = false;
+    std::optional<Atlases> m_atlas_result;
+    std::optional<std::string> m_result;
+    std::shared_ptr<const DepthModel> m_depth;
+    int64_t m_depth_step = -1;
+};
+
+const char* state_name(FitWorker::State s);
+
+}  // namespace refocus

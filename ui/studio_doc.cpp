@@ -1,0 +1,163 @@
+#include "studio_doc.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cstdlib>
+
+#include "util/error.h"
+#include "util/fs.h"
+
+namespace refocus {
+
+using nlohmann::json;
+
+fs::path StudioDoc::autosave_dir(const fs::path& project_dir) { return project_dir / ".autosave"; }
+
+void StudioDoc::load_work(const Project& from, const fs::path& edits_from) {
+    const std::string label = from.project_file().string();
+    m_focus = from.sections.contains("focus") ? FocusTrack::from_json(from.sections.at("focus"), label)
+                                              : FocusTrack{};
+    Project where = from;
+    where.dir = edits_from;
+    m_edits = ProjectEdits::load(where);
+}
+
+void StudioDoc::write_work(Project& to) {
+    to.sections["focus"] = m_focus.to_json();
+    m_edits.save(to);
+    to.save();
+}
+
+void StudioDoc::open(const std::string& path) {
+    auto p = std::make_unique<Project>(Project::load(path));
+    StudioDoc next;
+    next.load_work(*p, p->dir);
+    const fs::path as = autosave_dir(p->dir) / Project::kFileName;
+    std::error_code ec;
+    next.m_newer_autosave =
+        fs::exists(as) && fs::last_write_time(as, ec) > fs::last_write_time(p->project_file(), ec);
+    next.m_project = std::move(p);
+    *this = std::move(next);
+    add_recent_project(m_project->dir.string());
+}
+
+void StudioDoc::create(const std::string& clip, const std::string& dir) {
+    Project p = create_project(clip, dir, {});
+    open(p.dir.string());
+}
+
+void StudioDoc::close() { *this = StudioDoc{}; }
+
+void StudioDoc::save() {
+    if (!m_project) throw Error("no project is open");
+    write_work(*m_project);
+    discard_autosave();
+    m_dirty = false;
+    m_autosaved = true;
+}
+
+void StudioDoc::save_as(const std::string& dir) {
+    if (!m_project) throw Error("no project is open");
+    const fs::path to = fs::absolute(dir);
+    std::error_code ec;
+    if (fs::exists(to) && !fs::is_empty(to, ec))
+        throw Error(file_error(to.string(), "exists and is not empty: choose a new folder"));
+    fs::create_directories(to, ec);
+    for (const auto& entry : fs::directory_iterator(m_project->dir)) {
+        if (entry.path().filename() == ".autosave") continue;
+        fs::copy(entry.path(), to / entry.path().filename(),
+                 fs::copy_options::recursive | fs::copy_options::overwrite_existing, ec);
+        if (ec) throw Error(file_error((to / entry.path().filename()).string(), "cannot copy: " + ec.message()));
+    }
+    // The source clip path is stored relative to the project: keep it pointing at the clip.
+    Project moved = *m_project;
+    if (!moved.source.empty() && fs::path(moved.source).is_relative())
+        moved.source = fs::absolute(m_project->dir / moved.source).lexically_normal().string();
+    moved.dir = to;
+    *m_project = moved;
+    save();
+    add_recent_project(to.string());
+}
+
+void StudioDoc::mark_dirty() {
+    m_dirty = true;
+    m_autosaved = false;
+    m_changed_at = 0.0;  // stamped by the next autosave_if_due
+}
+
+bool StudioDoc::autosave_if_due(double now_s, double interval_s) {
+    if (!m_project || m_autosaved) return false;
+    if (m_changed_at == 0.0) m_changed_at = now_s;
+    if (now_s - m_changed_at < interval_s) return false;
+    Project copy = *m_project;
+    copy.dir = autosave_dir(m_project->dir);
+    std::error_code ec;
+    fs::create_directories(copy.dir, ec);
+    write_work(copy);
+    m_autosaved = true;
+    return true;
+}
+
+bool StudioDoc::has_newer_autosave() const { return m_newer_autosave; }
+
+void StudioDoc::restore_autosave() {
+    if (!m_project) return;
+    const fs::path dir = autosave_dir(m_project->dir);
+    const fs::path file = dir / Project::kFileName;
+    json j;
+    try {
+        j = json::parse(read_text_file(file.string()));
+    } catch (const json::exception& e) {
+        throw Error(file_error(file.string(), std::string("unreadable autosave: ") + e.what()));
+    }
+    Project saved = Project::from_json(j, m_project->dir, file.string());
+    load_work(saved, dir);
+    m_newer_autosave = false;
+    m_dirty = true;
+    m_autosaved = true;
+}
+
+void StudioDoc::discard_autosave() {
+    if (!m_project) return;
+    std::error_code ec;
+    fs::remove_all(autosave_dir(m_project->dir), ec);
+    m_newer_autosave = false;
+}
+
+namespace {
+fs::path recent_file() {
+    const char* xdg = std::getenv("XDG_CONFIG_HOME");
+    const char* home = std::getenv("HOME");
+    fs::path base = xdg && *xdg ? fs::path(xdg) : fs::path(home ? home : "/tmp") / ".config";
+    return base / "refocus" / "recent.json";
+}
+}  // namespace
+
+std::vector<std::string> recent_projects() {
+    try {
+        const fs::path f = recent_file();
+        if (!fs::exists(f)) return {};
+        return json::parse(read_text_file(f.string())).get<std::vector<std::string>>();
+    } catch (...) {
+        return {};  // a damaged list is not worth an error: it is rebuilt on the next open
+    }
+}
+
+void add_recent_project(const std::string& dir) {
+    std::vector<std::string> list = recent_projects();
+    const std::string abs = fs::absolute(dir).lexically_normal().string();
+    list.erase(std::remove(list.begin(), list.end(), abs), list.end());
+    list.insert(list.begin(), abs);
+    if (list.size() > 10) list.resize(10);
+    try {
+        const fs::path f = recent_file();
+        std::error_code ec;
+        fs::create_directories(f.parent_path(), ec);
+        write_file_atomic(f.string(), json(list).dump(2));
+    } catch (...) {
+        // A read-only home must not stop the studio.
+    }
+}
+
+}  // namespace refocus

@@ -1,0 +1,64 @@
+#pragma once
+// The studio's open document: the project, the artist's work on it (focus keyframes, atlas
+// edits), whether it changed since the last save, autosave and the recent-files list.
+// Saved work lives in the project folder (project.json "focus" section, edits/); autosave
+// writes to <project>/.autosave/ and never touches the saved files, so a crash or "Discard"
+// cannot lose what was saved, and a crash after a change can be recovered on the next open.
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "edit/atlas_edit.h"
+#include "edit/focus.h"
+#include "project/project.h"
+
+namespace refocus {
+
+class StudioDoc {
+public:
+    bool is_open() const { return m_project != nullptr; }
+    const Project& project() const { return *m_project; }
+    Project& project() { return *m_project; }
+    FocusTrack& focus() { return m_focus; }
+    ProjectEdits& edits() { return m_edits; }
+
+    // Opens a project folder (or its project.json). Throws refocus::Error naming the file.
+    void open(const std::string& path);
+    // Ingests `clip` into a new project at `dir` and opens it.
+    void create(const std::string& clip, const std::string& dir);
+    void close();
+
+    // Writes project.json ("focus", "edits") and edits/ atomically; clears the autosave.
+    void save();
+    // Copies the project folder to `dir` (must not exist or be empty), then saves there.
+    void save_as(const std::string& dir);
+
+    bool dirty() const { return m_dirty; }
+    void mark_dirty();
+    // Writes .autosave/ when the document changed since the last save or autosave and
+    // `interval_s` passed since the change. Returns true when it wrote.
+    bool autosave_if_due(double now_s, double interval_s = 60.0);
+    bool has_newer_autosave() const;  // found when the project was opened
+    void restore_autosave();           // takes the autosaved focus and edits (document dirty)
+    void discard_autosave();
+
+    static fs::path autosave_dir(const fs::path& project_dir);
+
+private:
+    void load_work(const Project& from, const fs::path& edits_dir_project);
+    void write_work(Project& to);
+
+    std::unique_ptr<Project> m_project;
+    FocusTrack m_focus;
+    ProjectEdits m_edits;
+    bool m_dirty = false;
+    bool m_autosaved = true;
+    double m_changed_at = 0.0;
+    bool m_newer_autosave = false;
+};
+
+// Recent projects, newest first, in $XDG_CONFIG_HOME/refocus/recent.json (or ~/.config/...).
+std::vector<std::string> recent_projects();
+void add_recent_project(const std::string& dir);
+
+}  // namespace refocus

@@ -1,0 +1,42 @@
+#pragma once
+// Scripted sessions (refocus-studio --script file.json): a JSON list of actions run one after
+// another through the studio's own action methods, each waiting until its work is finished (a
+// fit, an export, a frame's render). CI drives the studio with it under Xvfb
+// (tests/gui/smoke.json); a failing step exits non-zero naming the step.
+//   {"open": path}                         {"new": {"clip": c, "project": dir}}
+//   {"fit": {"preset": p, "iters": n | "minutes": m, "resume": b}}
+//   {"wait_depth": true}                   {"frame": n}          {"mode": "refocused"}
+//   {"key": {"lane": l, "frame": n, "value": v, "easing": "linear|ease|hold"}}
+//   {"focus_click": {"frame": n, "x": x, "y": y}}   {"track_click": {...same...}}
+//   {"paint": {"layer": "bg|fg", "points": [[x, y], ...], "color": [r, g, b], "size": s,
+//              "hardness": h, "opacity": o}}        (atlas px, linear colour)
+//   {"export": {"what": [...], "format": f, "out": dir, "first": a, "last": b}}
+//   {"save": true}  {"save_as": dir}  {"reopen": true}  {"screenshot": path}
+//   {"expect": {"keys": {"focus": n, ...}, "edits": true|false, "fitted": true}}
+//   {"stats": path}  (UI frame times as JSON)   {"quit": true}
+#include <nlohmann/json.hpp>
+
+#include <string>
+
+namespace refocus {
+
+class Studio;
+
+class StudioScript {
+public:
+    explicit StudioScript(const std::string& path);
+    // Runs or continues the current step after a drawn frame. -1: keep going; 0: finished;
+    // 1: failed (the reason is printed on stderr).
+    int advance(Studio& studio);
+
+private:
+    bool run_step(Studio& studio, const nlohmann::json& step);  // true: step finished
+    std::string m_path;
+    nlohmann::json m_steps;
+    size_t m_index = 0;
+    bool m_started = false;
+    double m_step_start = 0.0;
+    int m_settle = 0;
+};
+
+}  // namespace refocus
