@@ -9,11 +9,11 @@
 #include <vector>
 
 #include "atlas_panel.h"
-#include "fit_worker.h"
+#include "studio/fit_worker.h"
 #include "frame_source.h"
 #include "gl_preview.h"
 #include "studio.h"
-#include "studio_doc.h"
+#include "studio/document.h"
 
 struct GLFWwindow;
 

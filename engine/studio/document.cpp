@@ -1,4 +1,4 @@
-#include "studio_doc.h"
+#include "studio/document.h"
 
 #include <nlohmann/json.hpp>
 

@@ -1,4 +1,4 @@
-#include "fit_worker.h"
+#include "studio/fit_worker.h"
 
 #include <torch/torch.h>
 
@@ -117,6 +117,7 @@ void FitWorker::run_job(const std::string& what, const Job& job) {
         std::lock_guard<std::mutex> lk(m_mutex);
         m_status.error = what + ": " + e.what();
         m_status.log.push_back("error: " + m_status.error);
+        if (m_status.state == State::Preparing) m_status.state = m_engine ? State::Ready : State::Failed;
     }
     std::lock_guard<std::mutex> lk(m_mutex);
     m_status.busy = false;
@@ -125,6 +126,7 @@ void FitWorker::run_job(const std::string& what, const Job& job) {
 
 void FitWorker::open(const Project& project) {
     stop();
+    set_state(State::Preparing);  // at once, so that the UI and scripts see the pending work
     post("open", [this, project](FitEngine*, const Project&) {
         m_engine.reset();
         {
@@ -169,6 +171,7 @@ void FitWorker::close() {
 }
 
 void FitWorker::start(const FitSettings& settings, bool resume) {
+    set_state(State::Preparing);
     post("start fit", [this, settings, resume](FitEngine*, const Project&) {
         if (!m_project) throw Error("no project is open");
         const bool same_setup = m_engine && settings.setup.coc_path == m_settings.setup.coc_path &&
