@@ -395,7 +395,11 @@ int run_studio(const StudioOptions& opts) {
     {
         Studio studio(window, opts);
         std::unique_ptr<StudioScript> script;
-        if (!opts.script.empty()) script = std::make_unique<StudioScript>(opts.script);
+        if (!opts.script.empty()) {
+            script = std::make_unique<StudioScript>(opts.script);
+            // Scripts do not hover: park the pointer in an empty corner (no tooltips in shots).
+            glfwSetCursorPos(window, opts.width - 2, opts.height - 2);
+        }
         if (!opts.open_path.empty()) {
             try {
                 studio.open_project(opts.open_path);

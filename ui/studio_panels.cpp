@@ -5,6 +5,7 @@
 #include <imgui.h>
 
 #include <algorithm>
+#include <cfloat>
 #include <cmath>
 
 #include "studio_app.h"
@@ -173,16 +174,25 @@ void Studio::draw_fit_tab() {
                 s.reblur_psnr, s.loss);
     for (const auto& [k, v] : s.terms) ImGui::BulletText("%s  %.5g", k.c_str(), v);
     if (st.history.size() >= 2) {
+        // Per-batch values are noisy (each step sees other frames): exponential moving average.
         std::vector<float> loss, psnr;
         loss.reserve(st.history.size());
+        double l = std::log10(std::max(st.history[0].loss, 1e-9)), p = st.history[0].reblur_psnr;
         for (const auto& h : st.history) {
-            loss.push_back(static_cast<float>(std::log10(std::max(h.loss, 1e-9))));
-            psnr.push_back(static_cast<float>(h.reblur_psnr));
+            l += 0.1 * (std::log10(std::max(h.loss, 1e-9)) - l);
+            p += 0.1 * (h.reblur_psnr - p);
+            loss.push_back(static_cast<float>(l));
+            psnr.push_back(static_cast<float>(p));
         }
-        ImGui::PlotLines("log10 loss", loss.data(), static_cast<int>(loss.size()), 0, nullptr, FLT_MAX,
-                         FLT_MAX, ImVec2(-1, 90));
-        ImGui::PlotLines("reblur dB", psnr.data(), static_cast<int>(psnr.size()), 0, nullptr, FLT_MAX,
-                         FLT_MAX, ImVec2(-1, 90));
+        char o1[48], o2[48];
+        std::snprintf(o1, sizeof o1, "loss %.4g", st.history.back().loss);
+        std::snprintf(o2, sizeof o2, "reblur %.2f dB", st.history.back().reblur_psnr);
+        const float w = ImGui::GetContentRegionAvail().x;
+        ImGui::TextUnformatted("loss (log scale) and reblur PSNR, smoothed, over the steps");
+        ImGui::PlotLines("##loss", loss.data(), static_cast<int>(loss.size()), 0, o1, FLT_MAX, FLT_MAX,
+                         ImVec2(w, 80));
+        ImGui::PlotLines("##psnr", psnr.data(), static_cast<int>(psnr.size()), 0, o2, FLT_MAX, FLT_MAX,
+                         ImVec2(w, 80));
     }
     if (!st.error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "%s", st.error.c_str());
 }

@@ -142,6 +142,20 @@ bool StudioScript::run_step(Studio& st, const json& step) {
         if (first) st.set_mode(parse_view_mode(step["mode"]));
         return st.view_current() || st.m_mode == ViewMode::Input;
     }
+    if (step.contains("atlas_view")) {
+        st.m_show_atlas = step["atlas_view"].get<bool>();
+        return m_settle > 2;  // drawn
+    }
+    if (step.contains("split")) {
+        if (first) {
+            const json& sp = step["split"];
+            st.m_split_a = parse_view_mode(sp.value("left", "input"));
+            st.m_split_b = parse_view_mode(sp.value("right", "refocused"));
+            st.m_split = sp.value("wipe", 0.5f);
+            st.set_mode(ViewMode::Split);
+        }
+        return st.view_current();
+    }
     if (step.contains("key")) {
         const json& k = step["key"];
         st.set_key(k.at("lane"), k.at("frame"), k.at("value"), parse_easing(k.value("easing", "ease")));

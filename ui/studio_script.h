@@ -11,6 +11,7 @@
 //   {"paint": {"layer": "bg|fg", "points": [[x, y], ...], "color": [r, g, b], "size": s,
 //              "hardness": h, "opacity": o}}        (atlas px, linear colour)
 //   {"export": {"what": [...], "format": f, "out": dir, "first": a, "last": b}}
+//   {"atlas_view": true|false}  {"split": {"left": mode, "right": mode, "wipe": 0..1}}
 //   {"save": true}  {"save_as": dir}  {"reopen": true}  {"screenshot": path}
 //   {"expect": {"keys": {"focus": n, ...}, "edits": true|false, "fitted": true}}
 //   {"stats": path}  (UI frame times as JSON)   {"quit": true}

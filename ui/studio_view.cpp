@@ -278,13 +278,24 @@ void Studio::draw_viewer() {
     const float scale = m_zoom > 0 ? m_zoom
                                    : std::min(avail.x / m_tex_w, std::max(avail.y, 1.0f) / m_tex_h);
     const ImVec2 isz(m_tex_w * scale, m_tex_h * scale);
-    ImGui::BeginChild("image", avail, false, ImGuiWindowFlags_HorizontalScrollbar);
+    ImGui::BeginChild("image", avail, false,
+                      ImGuiWindowFlags_HorizontalScrollbar | ImGuiWindowFlags_NoScrollWithMouse);
     const ImVec2 cur = ImGui::GetCursorScreenPos(), region = ImGui::GetContentRegionAvail();
     ImGui::SetCursorScreenPos(ImVec2(cur.x + std::max(0.0f, (region.x - isz.x) * 0.5f),
                                      cur.y + std::max(0.0f, (region.y - isz.y) * 0.5f)));
     const ImVec2 ip = ImGui::GetCursorScreenPos();
     ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<intptr_t>(m_tex)), isz);
     m_img_x = ip.x, m_img_y = ip.y, m_img_w = isz.x, m_img_h = isz.y;
+    if (ImGui::IsWindowHovered()) {
+        // Wheel zooms (from "fit" on), middle or right drag pans.
+        const ImGuiIO& io = ImGui::GetIO();
+        if (io.MouseWheel != 0.0f)
+            m_zoom = std::clamp((m_zoom > 0 ? m_zoom : scale) * std::pow(1.15f, io.MouseWheel), 0.1f, 16.0f);
+        if (ImGui::IsMouseDragging(ImGuiMouseButton_Middle) || ImGui::IsMouseDragging(ImGuiMouseButton_Right)) {
+            ImGui::SetScrollX(ImGui::GetScrollX() - io.MouseDelta.x);
+            ImGui::SetScrollY(ImGui::GetScrollY() - io.MouseDelta.y);
+        }
+    }
     if (ImGui::IsItemHovered()) {
         int x, y;
         const ImVec2 mp = ImGui::GetMousePos();
