@@ -70,6 +70,7 @@ public:
     // Measured UI frame times (ms) for the report.
     double longest_frame_ms() const { return m_longest_frame_ms; }
     double longest_frame_during_fit_ms() const { return m_longest_fit_frame_ms; }
+    double last_preview_ms() const { return m_last_preview_ms; }
 
 private:
     friend class StudioScript;
@@ -168,6 +169,7 @@ private:
     // timing
     double m_frame_start = 0.0;
     double m_longest_frame_ms = 0.0, m_longest_fit_frame_ms = 0.0;
+    double m_last_preview_ms = 0.0;  // the last GLSL preview render, read-back included
     int m_frames_drawn = 0;
 };
 

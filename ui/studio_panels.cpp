@@ -374,6 +374,7 @@ void Studio::draw_log_tab() {
     const FitWorker::Status st = m_worker->status();
     ImGui::Text("longest UI frame: %.1f ms (during a fit: %.1f ms)", m_longest_frame_ms,
                 m_longest_fit_frame_ms);
+    ImGui::Text("last GLSL preview render: %.1f ms", m_last_preview_ms);
     ImGui::BeginChild("log", ImVec2(0, 0), true);
     for (const auto& l : st.log) ImGui::TextWrapped("%s", l.c_str());
     if (ImGui::GetScrollY() >= ImGui::GetScrollMaxY()) ImGui::SetScrollHereY(1.0f);

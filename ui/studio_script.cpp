@@ -238,7 +238,8 @@ bool StudioScript::run_step(Studio& st, const json& step) {
     }
     if (step.contains("stats")) {
         json s = {{"longest_frame_ms", st.longest_frame_ms()},
-                  {"longest_frame_during_fit_ms", st.longest_frame_during_fit_ms()}};
+                  {"longest_frame_during_fit_ms", st.longest_frame_during_fit_ms()},
+                  {"last_preview_ms", st.last_preview_ms()}};
         write_file_atomic(step["stats"].get<std::string>(), s.dump(2));
         return true;
     }

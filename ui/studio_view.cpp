@@ -120,10 +120,28 @@ Image Studio::preview_image(bool refocus) {
     PreviewLens lens;
     if (refocus) {
         lens = m_doc.focus().lens_at(m_frame, m_depth.get());
-        if (m_depth) m_gl->set_depth(m_depth->frame_depth(m_frame, m.uv_bg, m.uv_fg));
+        if (m_depth) {
+            m_gl->set_depth(m_depth->frame_depth(m_frame, m.uv_bg, m.uv_fg));
+            // The gather window follows the largest radius this frame can have (the result is
+            // the same as with the default bound, and small apertures render much faster).
+            float lo = 1e30f, hi = -1e30f;
+            auto range = [&](const Image& a, float off) {
+                for (float v : a.pixels)
+                    if (std::isfinite(v)) lo = std::min(lo, v + off), hi = std::max(hi, v + off);
+            };
+            range(m_depth->bg_atlas, 0.0f);
+            if (m_depth->has_fg()) range(m_depth->fg_atlas, m_depth->fg_offset[m_frame]);
+            if (lo <= hi) {
+                const double r = lens.aperture * std::max(std::abs(hi - lens.focus), std::abs(lo - lens.focus));
+                lens.max_radius = std::clamp(std::ceil(r) + 1.0, 1.0, lens.max_radius);
+            }
+        }
     }
+    const double t0 = glfwGetTime();
     m_gl->render(lens);
-    return m_gl->read_result();
+    Image out = m_gl->read_result();  // waits for the GPU: the render's full cost
+    m_last_preview_ms = (glfwGetTime() - t0) * 1000.0;
+    return out;
 }
 
 Image Studio::view_image(ViewMode mode) {
