@@ -239,7 +239,10 @@ void Studio::draw_viewer() {
     if (m_show_atlas) {
         ImGui::SetNextWindowPos(pos);
         ImGui::SetNextWindowSize(size);
-        if (m_atlas_panel.draw()) m_view_dirty = true;
+        if (m_atlas_panel.draw()) {  // a stroke, an undo, an import: the document changed
+            m_view_dirty = true;
+            m_doc.mark_dirty();
+        }
         return;
     }
     ImGui::SetNextWindowPos(pos);
