@@ -6,12 +6,58 @@
 #include <cmath>
 #include <cstdio>
 
+#include <nlohmann/json.hpp>
+
 #include "fit/stack_coc.h"
 #include "fit/tensor_image.h"
+#include "io/image_file.h"
 #include "prepare/prepare.h"
 #include "util/error.h"
 
 namespace refocus {
+
+namespace {
+
+// The focal-stack radius (~20 s at 320x180x30) is cached in prep/ beside what it was computed
+// from: prep/stack_coc_%04d.exr and prep/stack_coc.json (written last) holding a key of its
+// inputs (prepare.json's content, the layer decision). Opening a fitted project, exporting and
+// the studio then reuse it; a new prepare or another decision recomputes it.
+std::string stack_key(const Project& project, const FitData& d) {
+    const std::string prep = read_text_file(fs::path(prepare_dir(project)) / "prepare.json");
+    return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
+           (d.static_camera ? "/static" : "/moving") + "/v1";
+}
+
+fs::path stack_frame_path(const Project& project, int t) {
+    return fs::path(prepare_dir(project)) / format_pattern("stack_coc_%04d.exr", t);
+}
+
+torch::Tensor load_stack_radius(const Project& project, const FitData& d, const std::string& key) {
+    const fs::path meta = fs::path(prepare_dir(project)) / "stack_coc.json";
+    try {
+        if (!fs::exists(meta) || nlohmann::json::parse(read_text_file(meta)).value("key", "") != key)
+            return {};
+        std::vector<Image> maps;
+        for (int t = 0; t < d.frames; ++t) {
+            Image m = read_image_file(stack_frame_path(project, t).string(), false).image;
+            if (m.width != d.width || m.height != d.height || m.channels != 1) return {};
+            maps.push_back(std::move(m));
+        }
+        return stack_images(maps).squeeze(1).contiguous();
+    } catch (const std::exception&) {
+        return {};  // a damaged cache is recomputed
+    }
+}
+
+void save_stack_radius(const Project& project, const torch::Tensor& radius, const std::string& key) {
+    for (int t = 0; t < radius.size(0); ++t)
+        write_image_file(stack_frame_path(project, t).string(), tensor_to_image(radius[t].contiguous()),
+                         PixelFormat::ExrFloat, false);
+    write_file_atomic(fs::path(prepare_dir(project)) / "stack_coc.json",
+                      nlohmann::json{{"key", key}, {"frames", radius.size(0)}}.dump(2));
+}
+
+}  // namespace
 
 std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOptions& opts,
                                         PrepareLog& log) {
@@ -108,8 +154,20 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     if (d->has_subject) d->mask = stack_images(prep.masks);
     if (opts.coc_path.empty()) {
         if (d->frames >= 3 && !opts.single_image_coc) {
-            d->radius = estimate_radius_from_stack(*d);
-            log.info("radius: estimated per frame from the clip as a focal stack (median " +
+            const std::string key = stack_key(project, *d);
+            torch::Tensor cached = load_stack_radius(project, *d, key);
+            if (cached.defined()) {
+                d->radius = cached;
+            } else {
+                d->radius = estimate_radius_from_stack(*d);
+                try {
+                    save_stack_radius(project, d->radius, key);
+                } catch (const std::exception& e) {
+                    log.info(std::string("radius: not cached (") + e.what() + ")");
+                }
+            }
+            log.info(std::string("radius: ") + (cached.defined() ? "reused from prep/, " : "") +
+                     "estimated per frame from the clip as a focal stack (median " +
                      std::to_string(d->radius.median().item<float>()).substr(0, 4) + " px)");
         } else {
             log.info("radius: estimated per frame (edge reblur ratio, guided filter)");
