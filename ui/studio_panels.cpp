@@ -141,7 +141,7 @@ void Studio::draw_fit_tab() {
         ImGui::TextWrapped("Open or create a project first (File menu).");
         return;
     }
-    const FitWorker::Status st = m_worker->status();
+    const FitWorker::Status st = m_worker->status(true);
     const bool running = st.state == FitWorker::State::Fitting || st.state == FitWorker::State::Paused;
     ImGui::BeginDisabled(running || st.busy);
     ImGui::Combo("preset", &m_preset, kPresets, 3);
@@ -371,7 +371,7 @@ void Studio::draw_export_tab() {
 }
 
 void Studio::draw_log_tab() {
-    const FitWorker::Status st = m_worker->status();
+    const FitWorker::Status st = m_worker->status(true);
     ImGui::Text("longest UI frame: %.1f ms (during a fit: %.1f ms)", m_longest_frame_ms,
                 m_longest_fit_frame_ms);
     ImGui::Text("last GLSL preview render: %.1f ms", m_last_preview_ms);

@@ -63,9 +63,17 @@ std::optional<std::string> FitWorker::take_result() {
     return r;
 }
 
-FitWorker::Status FitWorker::status() const {
+FitWorker::Status FitWorker::status(bool full) const {
     std::lock_guard<std::mutex> lk(m_mutex);
-    return m_status;
+    if (full) return m_status;
+    Status s;
+    s.state = m_status.state;
+    s.snap = m_status.snap;
+    s.error = m_status.error;
+    s.busy = m_status.busy;
+    s.busy_what = m_status.busy_what;
+    s.job_progress = m_status.job_progress;
+    return s;
 }
 
 bool FitWorker::has_engine() const {

@@ -79,7 +79,8 @@ public:
     void post_result(const std::string& r);
     std::optional<std::string> take_result();
 
-    Status status() const;
+    // The state; with `full`, also the step history and the log (copies: ask only to draw them).
+    Status status(bool full = false) const;
     bool has_engine() const;
     bool has_checkpoint() const;
     FitSettings settings() const;
