@@ -99,14 +99,30 @@ void Studio::open_project(const std::string& path) {
     fs::path dir = clip.parent_path() / (clip.stem().string() + "_refocus");
     for (int i = 2; fs::exists(dir) && !is_project_path(dir.string()); ++i)
         dir = clip.parent_path() / (clip.stem().string() + "_refocus" + std::to_string(i));
-    if (is_project_path(dir.string())) m_doc.open(dir.string());
-    else m_doc.create(clip.string(), dir.string());
-    after_open();
+    if (is_project_path(dir.string())) {
+        m_doc.open(dir.string());
+        after_open();
+    } else {
+        new_project(clip.string(), dir.string());
+    }
 }
 
 void Studio::new_project(const std::string& clip, const std::string& dir) {
-    m_doc.create(clip, dir);
-    after_open();
+    // Ingesting decodes every frame into the EXR cache: minutes for a long clip, so it runs on
+    // the worker with a progress bar; the project opens when it is done.
+    if (!m_ingest_dir.empty()) throw Error("a clip is already being ingested");
+    if (clip.empty() || dir.empty()) throw Error("give a clip and a new project folder");
+    m_worker->stop();
+    m_ingest_dir = fs::absolute(dir).string();
+    FitWorker* w = m_worker.get();
+    m_worker->post("ingest " + clip, [w, clip, dir](FitEngine*, const Project&) {
+        try {
+            Project p = create_project(clip, dir, {}, [w](int i, int n) { w->set_job_progress(double(i) / n); });
+            w->post_result("ingested:" + p.dir.string());
+        } catch (const std::exception& e) {
+            w->post_result(std::string("ingest failed:") + e.what());
+        }
+    });
 }
 
 void Studio::save() {
@@ -355,7 +371,7 @@ void Studio::frame() {
         request_close();
     }
     poll_worker();
-    poll_export();
+    poll_results();
     draw_menu();
     draw_viewer();
     draw_timeline();

@@ -64,6 +64,7 @@ public:
     void set_mode(ViewMode m) { m_mode = m; m_show_atlas = false; m_view_dirty = true; }
     bool view_current() const;  // the viewer shows the playhead frame with the newest state
     bool exporting() const { return m_exporting; }
+    bool ingesting() const { return !m_ingest_dir.empty(); }
     const std::string& last_error() const { return m_error; }
     const std::string& export_result() const { return m_export_result; }
 
@@ -83,7 +84,7 @@ private:
     void draw_focus_tab();
     void draw_export_tab();
     void draw_log_tab();
-    void poll_export();
+    void poll_results();  // export outcomes, ingested clips
     void draw_modals();
     // viewer plumbing
     void poll_worker();
@@ -157,6 +158,7 @@ private:
     char m_exp_out[1024] = {0};
     bool m_exporting = false;
     std::string m_export_result;
+    std::string m_ingest_dir;  // the project a running ingest creates
 
     // modals / prompts
     std::string m_error, m_info;

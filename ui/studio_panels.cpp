@@ -325,9 +325,20 @@ void Studio::start_export(const nlohmann::json& req) {
     });
 }
 
-void Studio::poll_export() {
-    if (!m_exporting) return;
-    if (auto r = m_worker->take_result()) {
+void Studio::poll_results() {
+    if (!m_exporting && m_ingest_dir.empty()) return;
+    auto r = m_worker->take_result();
+    if (!r) return;
+    if (r->rfind("ingested:", 0) == 0) {
+        m_ingest_dir.clear();
+        guarded([&] {
+            m_doc.open(r->substr(9));
+            after_open();
+        });
+    } else if (r->rfind("ingest failed:", 0) == 0) {
+        m_ingest_dir.clear();
+        set_error(r->substr(14));
+    } else {
         m_exporting = false;
         m_export_result = *r;
         m_info = *r;

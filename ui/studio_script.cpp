@@ -112,7 +112,7 @@ bool StudioScript::run_step(Studio& st, const json& step) {
     }
     if (step.contains("new")) {
         if (first) st.new_project(step["new"].at("clip"), step["new"].at("project"));
-        return worker_idle();
+        return !st.ingesting() && st.m_doc.is_open() && worker_idle();
     }
     if (step.contains("fit")) {
         const json& f = step["fit"];

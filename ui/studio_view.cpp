@@ -250,6 +250,12 @@ void Studio::draw_viewer() {
     ImGui::Begin("Viewer", nullptr,
                  ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoMove |
                      ImGuiWindowFlags_NoBringToFrontOnFocus | ImGuiWindowFlags_NoSavedSettings);
+    if (!m_ingest_dir.empty()) {
+        ImGui::Text("Making the project %s: decoding the clip's frames ...", m_ingest_dir.c_str());
+        ImGui::ProgressBar(static_cast<float>(m_worker->status().job_progress), ImVec2(400, 0));
+        ImGui::End();
+        return;
+    }
     if (!m_source) {
         ImGui::TextWrapped(
             "No project open.\n\nFile > New from clip... makes a project from a video or an image "

@@ -141,7 +141,7 @@ bool is_project_path(const std::string& path) {
 }
 
 Project create_project(const std::string& clip, const fs::path& dir, const ClipReadOptions& opts,
-                       void (*progress)(int, int)) {
+                       const std::function<void(int, int)>& progress) {
     if (fs::exists(dir / Project::kFileName))
         throw Error(file_error((dir / Project::kFileName).string(),
                                "a project already exists here; choose another folder"));

@@ -4,6 +4,7 @@
 // focus, edits) are kept as JSON and written back untouched by code that does not know them.
 #include <nlohmann/json.hpp>
 
+#include <functional>
 #include <string>
 
 #include "io/clip.h"
@@ -46,6 +47,6 @@ bool is_project_path(const std::string& path);
 // Ingests `clip` into a new project at `dir` (created; must be empty or absent): the frames
 // become a linear EXR cache that later stages read quickly. `progress(i, n)` is called per frame.
 Project create_project(const std::string& clip, const fs::path& dir, const ClipReadOptions& opts,
-                       void (*progress)(int, int) = nullptr);
+                       const std::function<void(int, int)>& progress = {});
 
 }  // namespace refocus
