@@ -18,24 +18,45 @@ struct Row {
     double minutes = 0;
     int64_t step = 0;
     double psnr = 0, ssim = 0, tpsnr = 0, reblur_psnr = 0;
+    int frames_done = 0;                 // frames the figures cover
+    double in_psnr = 0, in_ssim = 0, in_tpsnr = 0;  // the input's on the same frames
 };
 
+// Figures over the frames the fit has produced. `perframe` deconvolves one frame per step and
+// may run out of time before the last: the frames not reached still hold the input, so they
+// are left out (and the input's figures are recomputed on the same frames for the comparison);
+// tPSNR then covers the leading run of consecutive frames done.
 Row evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<Image>& input) {
-    std::vector<Image> sharp, reblur;
+    std::vector<Image> sharp, reblur, g, in;
     for (int t = 0; t < static_cast<int>(gt.size()); ++t) {
+        if (!engine.frame_done(t)) continue;
         Layers L = engine.render_frame(t);
-        torch::NoGradGuard g;
+        torch::NoGradGuard ng;
         sharp.push_back(tensor_to_image(L.sharp[0].clamp_min(0)));
         reblur.push_back(tensor_to_image(engine.reblur(L, {t})[0].clamp_min(0)));
+        g.push_back(gt[t]);
+        in.push_back(input[t]);
     }
     Row r;
     FitSnapshot s = engine.snapshot();
     r.minutes = s.elapsed_s / 60.0;
     r.step = s.step;
-    r.psnr = mean_psnr(sharp, gt);
-    r.ssim = mean_ssim(sharp, gt);
-    r.tpsnr = gt.size() > 1 ? tpsnr(sharp, gt) : 0.0;
-    r.reblur_psnr = mean_psnr(reblur, input);
+    r.frames_done = static_cast<int>(sharp.size());
+    if (sharp.empty()) return r;
+    r.psnr = mean_psnr(sharp, g);
+    r.ssim = mean_ssim(sharp, g);
+    r.reblur_psnr = mean_psnr(reblur, in);
+    r.in_psnr = mean_psnr(in, g);
+    r.in_ssim = mean_ssim(in, g);
+    // Consecutive frames only (all of them unless perframe stopped early: it goes in order).
+    int run = 0;
+    while (run < static_cast<int>(gt.size()) && engine.frame_done(run)) ++run;
+    if (run > 1) {
+        std::vector<Image> a(sharp.begin(), sharp.begin() + run), b(g.begin(), g.begin() + run),
+            c(in.begin(), in.begin() + run);
+        r.tpsnr = tpsnr(a, b);
+        r.in_tpsnr = tpsnr(c, b);
+    }
     return r;
 }
 
@@ -87,7 +108,8 @@ int bench_fit(int argc, char** argv) {
                 project.width, project.height, project.frames, preset.c_str(),
                 oracle ? "ground truth (--coc)" : "estimated");
     std::printf("input vs ground truth: PSNR %.2f dB  SSIM %.4f  tPSNR %.2f dB\n", in_psnr, in_ssim, in_t);
-    std::printf("%8s %7s %9s %7s %9s %12s\n", "minutes", "step", "PSNR", "SSIM", "tPSNR", "reblur PSNR");
+    std::printf("%8s %7s %9s %7s %9s %12s %7s\n", "minutes", "step", "PSNR", "SSIM", "tPSNR", "reblur PSNR",
+                "frames");
     size_t next = 0;
     while (!engine.done()) {
         engine.step();
@@ -96,8 +118,8 @@ int bench_fit(int argc, char** argv) {
             while (next < at.size() && el >= at[next]) ++next;
             rows.push_back(evaluate(engine, gt, input));
             const Row& r = rows.back();
-            std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f\n", r.minutes, (long long)r.step,
-                        r.psnr, r.ssim, r.tpsnr, r.reblur_psnr);
+            std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f %4d/%d\n", r.minutes, (long long)r.step,
+                        r.psnr, r.ssim, r.tpsnr, r.reblur_psnr, r.frames_done, project.frames);
             std::fflush(stdout);
         }
     }
@@ -107,17 +129,23 @@ int bench_fit(int argc, char** argv) {
     FitSnapshot snap = engine.snapshot();
     write_fit_settings(project, s, &snap);
     const Row& r = rows.back();
-    std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f  (end)\n", r.minutes, (long long)r.step,
-                r.psnr, r.ssim, r.tpsnr, r.reblur_psnr);
+    std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f %4d/%d (end)\n", r.minutes, (long long)r.step,
+                r.psnr, r.ssim, r.tpsnr, r.reblur_psnr, r.frames_done, project.frames);
     std::printf("fitted project kept in %s\n", work.string().c_str());
-    std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - in_psnr, r.tpsnr - in_t);
+    if (r.frames_done < project.frames)
+        std::printf("only %d of %d frames done: figures on those frames; input there: PSNR %.2f dB  "
+                    "SSIM %.4f  tPSNR %.2f dB\n",
+                    r.frames_done, project.frames, r.in_psnr, r.in_ssim, r.in_tpsnr);
+    std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - r.in_psnr, r.tpsnr - r.in_tpsnr);
     if (a.has("csv")) {
         std::ostringstream csv;
-        csv << "clip,preset,radius,minutes,step,psnr,ssim,tpsnr,reblur_psnr,input_psnr,input_tpsnr\n";
+        csv << "clip,preset,radius,minutes,step,psnr,ssim,tpsnr,reblur_psnr,input_psnr,input_tpsnr,"
+               "frames_done,input_ssim\n";
         for (const Row& x : rows)
             csv << clip.filename().string() << "," << preset << "," << (oracle ? "oracle" : "estimated")
                 << "," << x.minutes << "," << x.step << "," << x.psnr << "," << x.ssim << ","
-                << x.tpsnr << "," << x.reblur_psnr << "," << in_psnr << "," << in_t << "\n";
+                << x.tpsnr << "," << x.reblur_psnr << "," << x.in_psnr << "," << x.in_tpsnr << ","
+                << x.frames_done << "," << x.in_ssim << "\n";
         write_file_atomic(a.get("csv"), csv.str());
     }
     return 0;

@@ -1,5 +1,6 @@
 #include "fit/atlas_geometry.h"
 
+#include <torch/nn/functional.h>
 #include <torch/torch.h>
 
 #include <algorithm>
@@ -83,6 +84,37 @@ AtlasBox subject_box(const torch::Tensor& mask, const std::vector<double>& vx,
     b.width = static_cast<int64_t>(std::ceil(fx1) - b.origin_x + margin) + 1;
     b.height = static_cast<int64_t>(std::ceil(fy1) - b.origin_y + margin) + 1;
     return b;
+}
+
+torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& grid) {
+    return torch::grid_sampler(input, grid, /*interpolation_mode=*/2, /*padding_mode=*/1,
+                               /*align_corners=*/false);
+}
+
+torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
+                          const torch::Tensor& src, const torch::Tensor& weight) {
+    namespace F = torch::nn::functional;
+    const int64_t T = src.size(0), C = src.size(1), H = src.size(2), W = src.size(3);
+    auto ys = torch::arange(height, torch::kFloat32), xs = torch::arange(width, torch::kFloat32);
+    auto g = torch::meshgrid({ys, xs}, "ij");
+    auto pts = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({height * width})}, 0);
+    auto acc = torch::zeros({C, height, width}), wsum = torch::zeros({1, height, width});
+    const auto scale = torch::tensor({2.0f / W, 2.0f / H});
+    auto opts = F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kZeros).align_corners(false);
+    auto ones = torch::ones({1, 1, H, W});
+    for (int64_t t = 0; t < T; ++t) {
+        auto inv = torch::inverse(to_atlas[t].to(torch::kFloat64)).to(torch::kFloat32);
+        auto p = torch::matmul(inv, pts);
+        auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, height, width, 2});
+        auto grid = (xy + 0.5) * scale - 1.0;
+        auto inside = F::grid_sample(ones, grid, opts)[0];
+        auto col = sample_bicubic(src[t].unsqueeze(0), grid)[0];
+        auto w = F::grid_sample(weight[t].unsqueeze(0), grid, opts)[0] * (inside > 0.999);
+        acc += col * w;
+        wsum += w;
+    }
+    auto mean = acc.sum({1, 2}, true) / wsum.sum().clamp_min(1e-12);
+    return torch::where(wsum > 1e-8, acc / wsum.clamp_min(1e-8), mean.expand_as(acc));
 }
 
 }  // namespace refocus

@@ -1,7 +1,8 @@
 #pragma once
 // Where the atlases lie, shared by the `fast` and `paper` presets: the background atlas covers
 // every frame mapped into the reference frame; the foreground atlas is stabilised on the
-// subject's (smoothed) mask centroid.
+// subject's (smoothed) mask centroid. Also the atlas sampling and the sharpest-view fusion that
+// both presets start from.
 #include <torch/types.h>
 
 #include <vector>
@@ -28,5 +29,18 @@ void subject_track(const torch::Tensor& mask, std::vector<double>& cx, std::vect
 // Extent of the subject in coordinates stabilised on the track, plus `margin` px.
 AtlasBox subject_box(const torch::Tensor& mask, const std::vector<double>& cx,
                      const std::vector<double>& cy, double margin);
+
+// Bicubic, border padding, align_corners = false. Bilinear resampling at fractional offsets is
+// itself a blur that the atlas would have to undo. (The C++ functional options of LibTorch 1.13
+// lack kBicubic; the ATen op takes the mode as an integer: 0 bilinear, 1 nearest, 2 bicubic.)
+torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& grid);
+
+// The starting atlas of both presets: every frame of src [T,C,H,W] pulled into an atlas of
+// height × width through the inverse of to_atlas ([T,3,3], frame pixel → atlas pixel) and
+// accumulated with weight [T,1,H,W] (the presets pass (r + ½)^−4, so that each atlas pixel comes
+// from the frames that saw it sharpest). Atlas pixels no frame sees get the weighted mean.
+// Returns [C,height,width] (not clamped).
+torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
+                          const torch::Tensor& src, const torch::Tensor& weight);
 
 }  // namespace refocus

@@ -29,15 +29,6 @@ torch::Tensor upsample(const torch::Tensor& x, int64_t h, int64_t w, bool corner
                                  .align_corners(corners));
 }
 
-// Bicubic, border padding, align_corners = false. Bilinear resampling at fractional offsets is
-// itself a blur that the atlas would have to undo. (The C++ functional options of LibTorch 1.13
-// lack kBicubic; the ATen op takes the mode as an integer: 0 bilinear, 1 nearest, 2 bicubic.)
-torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& grid) {
-    return torch::grid_sampler(input, grid, /*interpolation_mode=*/2, /*padding_mode=*/1,
-                               /*align_corners=*/false);
-}
-
-
 }  // namespace
 
 FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d), m_opts(opts) {
@@ -174,28 +165,7 @@ torch::Tensor FastModel::compose(const Atlas& a) const {
 }
 
 torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight) const {
-    // For every frame, pull its pixels into the atlas through the inverse mapping and
-    // accumulate them with their weight (sharpest observations dominate).
-    const int64_t T = m_data.frames;
-    auto ys = torch::arange(a.height, torch::kFloat32), xs = torch::arange(a.width, torch::kFloat32);
-    auto g = torch::meshgrid({ys, xs}, "ij");
-    auto pts = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({a.height * a.width})}, 0);
-    auto acc = torch::zeros({3, a.height, a.width}), wsum = torch::zeros({1, a.height, a.width});
-    const auto scale = torch::tensor({2.0f / m_data.width, 2.0f / m_data.height});
-    for (int64_t t = 0; t < T; ++t) {
-        auto inv = torch::inverse(a.to_atlas[t].to(torch::kFloat64)).to(torch::kFloat32);
-        auto p = torch::matmul(inv, pts);
-        auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, a.height, a.width, 2});
-        auto grid = (xy + 0.5) * scale - 1.0;
-        auto opts = F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kZeros).align_corners(false);
-        auto inside = F::grid_sample(torch::ones({1, 1, m_data.height, m_data.width}), grid, opts)[0];
-        auto col = sample_bicubic(m_data.input[t].unsqueeze(0), grid)[0];
-        auto w = F::grid_sample(weight[t].unsqueeze(0), grid, opts)[0] * (inside > 0.999);
-        acc += col * w;
-        wsum += w;
-    }
-    auto mean = acc.sum({1, 2}, true) / wsum.sum().clamp_min(1e-12);
-    return torch::where(wsum > 1e-8, acc / wsum.clamp_min(1e-8), mean.expand_as(acc));
+    return fuse_frames(a.to_atlas, a.height, a.width, m_data.input, weight);
 }
 
 void FastModel::init_levels(Atlas& a, const torch::Tensor& fused) {

@@ -89,7 +89,9 @@ double FitEngine::budget_fraction() const {
 
 bool FitEngine::done() const {
     if (m_stop) return true;
-    if (!m_model) return m_step >= m_data->frames;
+    // perframe: all frames, or the time budget (checked between frames, so a frame started
+    // before the budget ran out finishes); --iters counts frames there.
+    if (!m_model) return m_step >= m_data->frames || budget_fraction() >= 1.0;
     return budget_fraction() >= 1.0;
 }
 

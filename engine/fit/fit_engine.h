@@ -51,6 +51,9 @@ public:
 
     void step();              // one optimisation step (or one frame for `perframe`)
     bool done() const;        // budget used up or stop requested
+    // `perframe`: whether frame t has been deconvolved (frames not reached keep the input);
+    // other presets: always true.
+    bool frame_done(int t) const { return m_model || (t >= 0 && t < (int)m_perframe_done.size() && m_perframe_done[t]); }
     void request_stop() { m_stop = true; }
     void set_paused(bool p) { m_paused = p; }
     bool paused() const { return m_paused; }

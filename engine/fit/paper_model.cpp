@@ -21,13 +21,6 @@ namespace F = torch::nn::functional;
 
 namespace {
 
-// Bicubic, border padding, align_corners = false, as in the fast preset (fast_model.cpp).
-torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& grid) {
-    return torch::grid_sampler(input, grid, /*interpolation_mode=*/2, /*padding_mode=*/1,
-                               /*align_corners=*/false);
-}
-
-
 int64_t round_up8(int64_t v) { return (v + 7) / 8 * 8; }
 
 // Rigidity of a 2×2 Jacobian field (Layered Neural Atlases §3.3, their code): J is a rotation
@@ -107,6 +100,11 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
     env("REFOCUS_PAPER_PRETRAIN_MAP", m_opts.pretrain_map_steps);
     env("REFOCUS_PAPER_PRETRAIN_ATLAS", m_opts.pretrain_atlas_steps);
     env("REFOCUS_PAPER_STRIDE", m_opts.mlp_stride);
+    env("REFOCUS_PAPER_W_RECO", m_opts.w_reco);
+    env("REFOCUS_PAPER_SPARSITY_START", m_opts.sparsity_start);
+    env("REFOCUS_PAPER_SPARSITY_RAMP", m_opts.sparsity_ramp);
+    env("REFOCUS_PAPER_RESIDUAL_PX", m_opts.residual_px);
+    env("REFOCUS_PAPER_LR_PRETRAIN_ATLAS", m_opts.lr_pretrain_atlas);
     const PaperModelOptions& opts = m_opts;
     if (opts.decoder_channels.size() != 3)
         throw Error("paper preset: the atlas decoder has 3 pixel-shuffle stages (atlas = 8 × noise)");
@@ -126,6 +124,7 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
     m_bg.height = round_up8(box.height);
     m_bg.to_atlas = torch::matmul(translation(-ox, -oy), to_ref).to(torch::kFloat32);
     m_bg.map = CoordMlp(opts.map_freqs, opts.map_layers, opts.map_width, 2);
+    init_residual(m_bg);
 
     torch::NoGradGuard no_grad;
     auto ys = torch::arange(H, torch::kFloat32), xs = torch::arange(W, torch::kFloat32);
@@ -141,12 +140,16 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
         subject_track(d.mask, sx, sy);
         const AtlasBox fbox = subject_box(d.mask, sx, sy, 12.0);
         const double fox = fbox.origin_x, foy = fbox.origin_y;
-        m_fg.width = round_up8(fbox.width);
-        m_fg.height = round_up8(fbox.height);
+        // No larger than the background atlas (the frame's bounding box): masks that flag stray
+        // edges far from the subject made the stabilised box up to 3× the frame, an atlas the
+        // decoder then spent most of its time on.
+        m_fg.width = round_up8(std::min<int64_t>(fbox.width, m_bg.width));
+        m_fg.height = round_up8(std::min<int64_t>(fbox.height, m_bg.height));
         std::vector<torch::Tensor> mats;
         for (int64_t t = 0; t < T; ++t) mats.push_back(translation(-sx[t] - fox, -sy[t] - foy));
         m_fg.to_atlas = torch::stack(mats).to(torch::kFloat32);
         m_fg.map = CoordMlp(opts.map_freqs, opts.map_layers, opts.map_width, 2);
+        init_residual(m_fg);
         m_alpha = CoordMlp(opts.alpha_freqs, opts.alpha_layers, opts.alpha_width, 1);
     }
     m_decoder = AtlasDecoder(opts.noise_channels, opts.decoder_channels);
@@ -179,6 +182,16 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
     }
 }
 
+void PaperModel::init_residual(Layer& l) {
+    // The last layer starts at zero: M(p) is the geometric mapping exactly at step 0.
+    torch::NoGradGuard g;
+    auto last = l.map->net->ptr(l.map->net->size() - 1)->as<torch::nn::Linear>();
+    last->weight.zero_();
+    last->bias.zero_();
+    l.residual_scale = torch::tensor({float(m_opts.residual_px * 2.0 / l.width),
+                                      float(m_opts.residual_px * 2.0 / l.height)});
+}
+
 torch::Tensor PaperModel::coords(const torch::Tensor& x, const torch::Tensor& y,
                                  const torch::Tensor& t) const {
     // p = (x, y, t) → [−1, 1]: pixel centres 0 … W−1, frames 0 … T−1.
@@ -200,6 +213,13 @@ torch::Tensor PaperModel::lattice(const std::vector<int64_t>& frames) const {
     return coords(g[1].expand({B, m_lh, m_lw}), g[0].expand({B, m_lh, m_lw}), t);
 }
 
+torch::Tensor PaperModel::full_lattice(const std::vector<int64_t>& frames) const {
+    const int64_t B = frames.size(), H = m_data.height, W = m_data.width;
+    auto g = torch::meshgrid({torch::arange(H, torch::kFloat32), torch::arange(W, torch::kFloat32)}, "ij");
+    auto t = torch::tensor(frames, torch::kFloat32).view({B, 1, 1}).expand({B, H, W});
+    return coords(g[1].expand({B, H, W}), g[0].expand({B, H, W}), t);
+}
+
 torch::Tensor PaperModel::target_uv(const Layer& l, const torch::Tensor& px,
                                     const torch::Tensor& t) const {
     // px [N,2] frame pixels, t [N] long → [N,2] grid coordinates of the homography mapping.
@@ -211,10 +231,25 @@ torch::Tensor PaperModel::target_uv(const Layer& l, const torch::Tensor& px,
     return (a + 0.5) * scale - 1.0;
 }
 
-torch::Tensor PaperModel::uv(Layer& l, const torch::Tensor& p) {
+torch::Tensor PaperModel::residual(Layer& l, const torch::Tensor& p) {
     auto shape = p.sizes().vec();
     shape.back() = 2;
-    return torch::tanh(l.map->forward(p.reshape({-1, 3}))).view(shape);
+    return (torch::tanh(l.map->forward(p.reshape({-1, 3}))) * l.residual_scale).view(shape);
+}
+
+torch::Tensor PaperModel::base_uv(const Layer& l, const torch::Tensor& p) const {
+    // p normalised → frame pixel and frame index → the geometric mapping's grid coordinates.
+    const double W = m_data.width, H = m_data.height, T = m_data.frames;
+    auto q = p.reshape({-1, 3});
+    auto px = torch::stack({(q.select(1, 0) + 1.0) * ((W - 1) / 2.0), (q.select(1, 1) + 1.0) * ((H - 1) / 2.0)}, 1);
+    auto t = ((q.select(1, 2) + 1.0) * ((T - 1) / 2.0)).round().clamp(0, T - 1).to(torch::kLong);
+    auto shape = p.sizes().vec();
+    shape.back() = 2;
+    return target_uv(l, px, t).view(shape);
+}
+
+torch::Tensor PaperModel::uv(Layer& l, const torch::Tensor& p) {
+    return base_uv(l, p) + residual(l, p);
 }
 
 torch::Tensor PaperModel::alpha(const torch::Tensor& p) {
@@ -233,29 +268,8 @@ torch::Tensor PaperModel::up(const torch::Tensor& x) const {
 
 torch::Tensor PaperModel::fused(const Layer& l, const torch::Tensor& weight,
                                 const torch::Tensor& src) const {
-    // The fast preset's starting atlas: every frame pulled into the atlas through the inverse
-    // mapping, weighted toward the frames that saw each atlas pixel sharpest.
-    const int64_t T = m_data.frames;
-    auto ys = torch::arange(l.height, torch::kFloat32), xs = torch::arange(l.width, torch::kFloat32);
-    auto g = torch::meshgrid({ys, xs}, "ij");
-    auto pts = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({l.height * l.width})}, 0);
-    auto acc = torch::zeros({src.size(1), l.height, l.width}), wsum = torch::zeros({1, l.height, l.width});
-    const auto scale = torch::tensor({2.0f / m_data.width, 2.0f / m_data.height});
-    auto opts = F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kZeros).align_corners(false);
-    auto ones = torch::ones({1, 1, m_data.height, m_data.width});
-    for (int64_t t = 0; t < T; ++t) {
-        auto inv = torch::inverse(l.to_atlas[t].to(torch::kFloat64)).to(torch::kFloat32);
-        auto p = torch::matmul(inv, pts);
-        auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, l.height, l.width, 2});
-        auto grid = (xy + 0.5) * scale - 1.0;
-        auto inside = F::grid_sample(ones, grid, opts)[0];
-        auto col = sample_bicubic(src[t].unsqueeze(0), grid)[0];
-        auto w = F::grid_sample(weight[t].unsqueeze(0), grid, opts)[0] * (inside > 0.999);
-        acc += col * w;
-        wsum += w;
-    }
-    auto mean = acc.sum({1, 2}, true) / wsum.sum().clamp_min(1e-12);
-    return torch::where(wsum > 1e-8, acc / wsum.clamp_min(1e-8), mean.expand_as(acc)).clamp(0, 1);
+    // The fast preset's starting atlas (atlas_geometry.h).
+    return fuse_frames(l.to_atlas, l.height, l.width, src, weight).clamp(0, 1);
 }
 
 torch::Tensor PaperModel::sample_points(int64_t n, uint64_t salt, bool flow_frames) const {
@@ -275,35 +289,25 @@ torch::Tensor PaperModel::sample_points(int64_t n, uint64_t salt, bool flow_fram
 }
 
 void PaperModel::pretrain_mappings() {
-    // M_b, M_f to the homography / stabilised coordinates, M_α to the masks (bootstrap).
-    std::vector<torch::Tensor> params;
-    for (auto& p : m_bg.map->parameters()) params.push_back(p);
-    if (m_two_layers) {
-        for (auto& p : m_fg.map->parameters()) params.push_back(p);
-        for (auto& p : m_alpha->parameters()) params.push_back(p);
-    }
-    torch::optim::Adam opt(params, torch::optim::AdamOptions(1e-3));
+    // M_b, M_f start as the geometric mapping exactly (zero residual, see the header); M_α is
+    // pre-trained to the masks (LNA's bootstrap).
+    if (!m_two_layers) return;
+    torch::optim::Adam opt(m_alpha->parameters(), torch::optim::AdamOptions(1e-3));
     const int64_t n = 2048;
     for (int it = 0; it < m_opts.pretrain_map_steps; ++it) {
         auto pts = sample_points(n, 1000000 + it, false);
-        auto px = pts.narrow(1, 0, 2), tf = pts.select(1, 2);
+        auto tf = pts.select(1, 2);
         auto t = tf.to(torch::kLong);
         auto p = coords(pts.select(1, 0), pts.select(1, 1), tf);
-        auto half = torch::tensor({m_bg.width / 2.0f, m_bg.height / 2.0f});
-        auto loss = ((uv(m_bg, p) - target_uv(m_bg, px, t).clamp(-0.98, 0.98)) * half).pow(2).mean();
-        if (m_two_layers) {
-            auto hf = torch::tensor({m_fg.width / 2.0f, m_fg.height / 2.0f});
-            loss = loss + ((uv(m_fg, p) - target_uv(m_fg, px, t).clamp(-0.98, 0.98)) * hf).pow(2).mean();
-            auto lin = t * (m_data.height * m_data.width) + pts.select(1, 1).to(torch::kLong) * m_data.width +
-                       pts.select(1, 0).to(torch::kLong);
-            auto mk = m_data.mask.reshape({-1}).index_select(0, lin).unsqueeze(1);
-            loss = loss + 10.0 * (alpha(p) - mk).pow(2).mean();
-        }
+        auto lin = t * (m_data.height * m_data.width) + pts.select(1, 1).to(torch::kLong) * m_data.width +
+                   pts.select(1, 0).to(torch::kLong);
+        auto mk = m_data.mask.reshape({-1}).index_select(0, lin).unsqueeze(1);
+        auto loss = 10.0 * (alpha(p) - mk).pow(2).mean();
         opt.zero_grad();
         loss.backward();
         opt.step();
         if (std::getenv("REFOCUS_DEBUG_PAPER") && it + 1 == m_opts.pretrain_map_steps)
-            std::fprintf(stderr, "paper: mapping pre-training loss %.4g\n", loss.item<double>());
+            std::fprintf(stderr, "paper: alpha pre-training loss %.4g\n", loss.item<double>());
     }
 }
 
@@ -343,14 +347,15 @@ Layers PaperModel::render(const std::vector<int64_t>& frames) {
     auto to_full = [&](const torch::Tensor& lat) {  // [B,h,w,C] → [B,H,W,C]
         return up(lat.permute({0, 3, 1, 2})).permute({0, 2, 3, 1}).contiguous();
     };
-    out.uv_bg = to_full(uv(m_bg, p));
+    auto full = full_lattice(frames);  // [B,H,W,3]
+    out.uv_bg = base_uv(m_bg, full) + to_full(residual(m_bg, p));
     auto ab = m_decoder->forward(m_bg.noise);  // A_b = 𝔸(Z_b)   [1,3,Ha,Wa]
     out.bg = sample_bicubic(ab.expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
     if (!m_two_layers) {
         out.sharp = out.bg;
         return out;
     }
-    out.uv_fg = to_full(uv(m_fg, p));
+    out.uv_fg = base_uv(m_fg, full) + to_full(residual(m_fg, p));
     auto af = m_decoder->forward(m_fg.noise);  // A_f = 𝔸(Z_f), shared weights (§3.2)
     out.fg = sample_bicubic(af.expand({B, 3, m_fg.height, m_fg.width}), out.uv_fg);
     out.alpha = up(alpha(p).permute({0, 3, 1, 2}));
@@ -373,6 +378,9 @@ torch::Tensor PaperModel::priors(const Layers& layers, const std::vector<int64_t
                                  int64_t step, LossTerms& terms) {
     torch::Tensor total = torch::zeros({});
     const int64_t n = m_opts.prior_points;
+    // Paper eq. 4 weighs L_reco by λ1 = 0.3; the engine weighs it by 1, so the priors of eq. 4
+    // are divided by λ1 here (the same ratios; Adam is blind to the overall scale).
+    const double inv_l1 = 1.0 / std::max(1e-6, m_opts.w_reco);
     // Rigidity (paper §3.5, LNA): the mappings are locally rotations.
     auto pts = sample_points(n, 2 * uint64_t(step), false);
     torch::Tensor a_pts;
@@ -383,7 +391,7 @@ torch::Tensor PaperModel::priors(const Layers& layers, const std::vector<int64_t
         a_pts = alpha(coords(pts.select(1, 0), pts.select(1, 1), pts.select(1, 2))).squeeze(1).detach();
         rigid = rigid + (rigidity(m_fg, pts) * a_pts).sum() / a_pts.sum().clamp_min(1.0);
     }
-    total = total + m_opts.w_rigid * rigid;
+    total = total + inv_l1 * m_opts.w_rigid * rigid;
     terms["rigid"] = rigid.item<double>();
 
     // Flow (paper §3.5, LNA): p and its flow correspondence at t + 1 map to one atlas point.
@@ -411,14 +419,20 @@ torch::Tensor PaperModel::priors(const Layers& layers, const std::vector<int64_t
         } else {
             flow = (valid * db).sum() / valid.sum().clamp_min(1.0);
         }
-        total = total + m_opts.w_flow * flow;
+        total = total + inv_l1 * m_opts.w_flow * flow;
         terms["flow"] = flow.item<double>();
     }
 
     if (m_two_layers) {
         // Sparsity (paper §3.5, LNA): foreground colour where α is small should be zero.
         auto sparse = ((1.0 - layers.alpha) * layers.fg).pow(2).sum(1).mean();
-        total = total + m_opts.w_sparsity * sparse;
+        // Ramped in (0 before sparsity_start, full weight sparsity_ramp steps later): at full
+        // weight from step 0 it outweighs the reconstruction ~300:1 on the soft mask edges and,
+        // through the decoder shared with the background, pulled both atlases to black.
+        const double ramp = m_opts.sparsity_ramp > 0
+                                ? std::clamp(double(step - m_opts.sparsity_start) / m_opts.sparsity_ramp, 0.0, 1.0)
+                                : (step >= m_opts.sparsity_start ? 1.0 : 0.0);
+        total = total + inv_l1 * ramp * m_opts.w_sparsity * sparse;
         terms["sparsity"] = sparse.item<double>();
         // Mask bootstrap (LNA §3.3), decaying.
         const double decay = std::pow(0.5, double(step) / m_opts.bootstrap_halflife);
