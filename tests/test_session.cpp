@@ -166,6 +166,28 @@ TEST_CASE("fit worker: fit on its thread, render between steps, stop keeps the w
     CHECK(st.snap.step > 10);
     CHECK(st.snap.step < 1000);
 
+    // The document and the fit thread write project.json sections of their own: neither undoes
+    // the other's (the worker's Project copy predates the document's save).
+    {
+        StudioDoc doc;
+        doc.open((dir / "proj").string());
+        doc.focus().focus.set(1, 0.5, Easing::Linear);
+        doc.mark_dirty();
+        doc.save();
+        s.fit.minutes = 0;
+        s.fit.iters = 2;
+        w.start(s, true);
+        REQUIRE(wait_for([&] { return w.status().state == FitWorker::State::Fitting; }));
+        REQUIRE(wait_for([&] { return idle(w); }));
+        Project after = Project::load(dir / "proj");
+        CHECK(after.sections.contains("focus"));
+        CHECK(after.sections.at("focus").at("focus").size() == 1);
+        const int64_t fitted = after.sections.at("fit").at("status").at("step").get<int64_t>();
+        CHECK(fitted == w.status().snap.step);
+        doc.save();  // a later save keeps the fit's status
+        CHECK(Project::load(dir / "proj").sections.at("fit").at("status").at("step").get<int64_t>() == fitted);
+    }
+
     // A job reports its outcome; errors in jobs land in the status, the worker lives on.
     w.post("boom", [](FitEngine*, const Project&) { throw Error("deliberate failure"); });
     REQUIRE(wait_for([&] { return w.status().error.find("deliberate") != std::string::npos; }, 10));

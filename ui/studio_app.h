@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -93,6 +94,7 @@ private:
     Image preview_image(bool refocus);
     void upload(unsigned& tex, const Image& linear_rgb, int& w, int& h);
     void rebuild_time_slice();
+    void poll_time_slice();
     bool image_pixel(float sx, float sy, int& x, int& y) const;
     void set_error(const std::string& e) { m_error = e; }
     void after_open();
@@ -138,8 +140,15 @@ private:
     int m_tex_w = 0, m_tex_h = 0, m_slice_w = 0, m_slice_h = 0;
     std::shared_ptr<const DepthModel> m_depth;
     bool m_depth_requested = false;
-    Image m_slice;  // linear, width x frames
     bool m_slice_dirty = true;
+    struct SliceJob {
+        std::mutex mutex;
+        bool done = false;
+        Image image;  // linear, width x frames
+        std::string key;
+    };
+    std::shared_ptr<SliceJob> m_slice_job;
+    std::string m_slice_key, m_slice_label = "input";
     // image rectangle last drawn (screen px) for clicks and screenshots
     float m_img_x = 0, m_img_y = 0, m_img_w = 0, m_img_h = 0;
 

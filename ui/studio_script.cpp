@@ -146,6 +146,14 @@ bool StudioScript::run_step(Studio& st, const json& step) {
         st.m_show_atlas = step["atlas_view"].get<bool>();
         return m_settle > 2;  // drawn
     }
+    if (step.contains("time_slice")) {
+        if (first) {
+            st.m_time_slice = true;
+            st.m_slice_row = step["time_slice"].value("row", -1);
+            st.m_slice_dirty = true;
+        }
+        return m_settle > 3 && !st.m_slice_job && !st.m_slice_key.empty();
+    }
     if (step.contains("split")) {
         if (first) {
             const json& sp = step["split"];

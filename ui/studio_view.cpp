@@ -210,17 +210,63 @@ void Studio::refresh_view() {
 }
 
 void Studio::rebuild_time_slice() {
-    // One row over all frames (x → image column, y → frame): flicker shows as horizontal streaks.
+    // One row over all frames (x → image column, y → frame): flicker shows as horizontal
+    // streaks. The input's slice is read here; the sharp or refocused output's is rendered by the
+    // worker (every frame's layers, and the CPU twin for refocus), then shown when it arrives.
     const int w = m_source->width(), n = m_source->frames();
     if (m_slice_row < 0 || m_slice_row >= m_source->height()) m_slice_row = m_source->height() / 2;
-    Image s(w, n, 3);
-    for (int t = 0; t < n; ++t) {
-        Image f = m_source->linear(t);
-        for (int x = 0; x < w; ++x)
-            for (int c = 0; c < 3; ++c) s.at(x, t, c) = f.at(x, m_slice_row, std::min(c, f.channels - 1));
-    }
-    upload(m_slice_tex, s, m_slice_w, m_slice_h);
+    const bool output = m_mode != ViewMode::Input && m_worker->has_engine();
+    const bool refocus = output && m_depth &&
+                         (m_mode == ViewMode::Refocused ||
+                          (m_mode == ViewMode::Split && (m_split_a == ViewMode::Refocused ||
+                                                         m_split_b == ViewMode::Refocused)));
+    std::string key = std::to_string(m_slice_row) + (output ? (refocus ? "/refocus/" : "/sharp/") : "/input/") +
+                      std::to_string(m_atlas_version);
+    if (refocus) key += m_doc.focus().to_json().dump();
     m_slice_dirty = false;
+    if (key == m_slice_key) return;
+    m_slice_key = key;
+    if (!output) {
+        Image s(w, n, 3);
+        for (int t = 0; t < n; ++t) {
+            Image f = m_source->linear(t);
+            for (int x = 0; x < w; ++x)
+                for (int c = 0; c < 3; ++c) s.at(x, t, c) = f.at(x, m_slice_row, std::min(c, f.channels - 1));
+        }
+        upload(m_slice_tex, s, m_slice_w, m_slice_h);
+        m_slice_label = "input";
+        return;
+    }
+    auto job = std::make_shared<SliceJob>();
+    job->key = key;
+    m_slice_job = job;
+    const int row = m_slice_row;
+    std::shared_ptr<const DepthModel> depth = refocus ? m_depth : nullptr;
+    const FocusTrack focus = m_doc.focus();
+    m_worker->post("time slice", [job, row, depth, focus, w, n](FitEngine* engine, const Project&) {
+        if (!engine) return;
+        Image s(w, n, 3);
+        for (int t = 0; t < n; ++t) {
+            const FrameMaps m = frame_maps(*engine, t);
+            const Image f = depth ? render_refocused(m, *depth, t, focus.lens_at(t, depth.get()), 2) : m.sharp;
+            for (int x = 0; x < w; ++x)
+                for (int c = 0; c < 3; ++c) s.at(x, t, c) = f.at(x, row, c);
+        }
+        std::lock_guard<std::mutex> lk(job->mutex);
+        job->image = std::move(s);
+        job->done = true;
+    });
+}
+
+void Studio::poll_time_slice() {
+    if (!m_slice_job) return;
+    std::lock_guard<std::mutex> lk(m_slice_job->mutex);
+    if (!m_slice_job->done) return;
+    if (m_slice_job->key == m_slice_key) {
+        upload(m_slice_tex, m_slice_job->image, m_slice_w, m_slice_h);
+        m_slice_label = m_slice_key.find("/refocus/") != std::string::npos ? "refocused" : "sharp";
+    }
+    m_slice_job.reset();
 }
 
 bool Studio::image_pixel(float sx, float sy, int& x, int& y) const {
@@ -356,8 +402,10 @@ void Studio::draw_viewer() {
     ImGui::EndChild();
     if (m_time_slice) {
         if (m_slice_dirty) rebuild_time_slice();
-        ImGui::Text("time slice: input row %d over %d frames (click the image to choose the row)",
-                    m_slice_row, m_source->frames());
+        poll_time_slice();
+        ImGui::Text("time slice: %s row %d over %d frames%s (click the image to choose the row)",
+                    m_slice_label.c_str(), m_slice_row, m_source->frames(),
+                    m_slice_job ? ", rendering ..." : "");
         const float h = slice_h - ImGui::GetFrameHeightWithSpacing();
         ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<intptr_t>(m_slice_tex)),
                      ImVec2(std::min(avail.x, h * m_slice_w / std::max(1, m_slice_h) * 3), h));

@@ -370,7 +370,7 @@ void ProjectEdits::save(Project& p) const {
         }
     }
     p.sections["edits"] = sec;
-    p.save();
+    p.save_merged({"edits"});
 }
 
 // ---------------------------------------------------------------- frames

@@ -174,7 +174,7 @@ FocusTrack read_focus(const Project& p) {
 
 void write_focus(Project& p, const FocusTrack& track) {
     p.sections["focus"] = track.to_json();
-    p.save();
+    p.save_merged({"focus"});
 }
 
 }  // namespace refocus

@@ -56,7 +56,7 @@ void write_fit_settings(Project& p, const FitSettings& s, const FitSnapshot* sna
                        {"elapsed_s", snap->elapsed_s},
                        {"reblur_psnr", snap->reblur_psnr}};
     p.sections["fit"] = f;
-    p.save();
+    p.save_merged({"fit"});
 }
 
 std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {

@@ -1,5 +1,8 @@
 #include "project/project.h"
 
+#include <algorithm>
+#include <mutex>
+
 #include <cmath>
 
 #include "io/image_file.h"
@@ -133,6 +136,22 @@ Project Project::load(const fs::path& dir_or_file) {
 }
 
 void Project::save() const { write_file_atomic(project_file(), to_json().dump(2) + "\n"); }
+
+void Project::save_merged(const std::vector<std::string>& own) {
+    static std::mutex mutex;
+    std::lock_guard<std::mutex> lock(mutex);
+    if (fs::exists(project_file())) {
+        try {
+            const Project disk = from_json(json::parse(read_text_file(project_file())), dir,
+                                           project_file().string());
+            for (auto it = disk.sections.begin(); it != disk.sections.end(); ++it)
+                if (std::find(own.begin(), own.end(), it.key()) == own.end()) sections[it.key()] = it.value();
+        } catch (const std::exception&) {
+            // An unreadable project.json is replaced by this complete one.
+        }
+    }
+    save();
+}
 
 bool is_project_path(const std::string& path) {
     fs::path p(path);

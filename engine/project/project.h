@@ -6,6 +6,7 @@
 
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "io/clip.h"
 #include "util/fs.h"
@@ -39,6 +40,11 @@ struct Project {
     static Project load(const fs::path& dir_or_file);
     // Atomic write of project.json (the previous file stays intact on failure).
     void save() const;
+    // Saves, but every section not named in `own` is taken from the project.json on disk when
+    // there is one: other writers (the studio's fit thread writes "fit", its document "focus"
+    // and "edits") may have updated theirs since this object was loaded. Serialised within the
+    // process. The merged sections are kept in this object.
+    void save_merged(const std::vector<std::string>& own);
 };
 
 // Is `path` a project folder (or its project.json)?

@@ -24,9 +24,9 @@ void StudioDoc::load_work(const Project& from, const fs::path& edits_from) {
 }
 
 void StudioDoc::write_work(Project& to) {
+    m_edits.save(to);  // the edit files and the "edits" section
     to.sections["focus"] = m_focus.to_json();
-    m_edits.save(to);
-    to.save();
+    to.save_merged({"focus", "edits"});  // "fit" is the fit thread's: keep its latest
 }
 
 void StudioDoc::open(const std::string& path) {
