@@ -151,7 +151,22 @@ void Studio::draw_fit_tab() {
     ImGui::InputInt("seed", &m_seed);
     ImGui::InputText("radius maps (--coc)", m_coc_path, sizeof m_coc_path);
     ImGui::InputText("masks (--mask)", m_mask_path, sizeof m_mask_path);
-    if (ImGui::Button("Fit from scratch")) guarded([&] { start_fit(false); });
+    if (ImGui::Button("Fit from scratch")) {
+        if (m_worker->has_checkpoint()) ImGui::OpenPopup("Discard the fit?");
+        else guarded([&] { start_fit(false); });
+    }
+    if (ImGui::BeginPopupModal("Discard the fit?", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
+        ImGui::Text("The project is fitted (step %lld). Start over from nothing?\n"
+                    "(Continue fitting keeps the work and adds the budget.)",
+                    static_cast<long long>(st.snap.step));
+        if (ImGui::Button("Start over")) {
+            ImGui::CloseCurrentPopup();
+            guarded([&] { start_fit(false); });
+        }
+        ImGui::SameLine();
+        if (ImGui::Button("Cancel")) ImGui::CloseCurrentPopup();
+        ImGui::EndPopup();
+    }
     ImGui::SameLine();
     ImGui::BeginDisabled(!m_worker->has_checkpoint());
     if (ImGui::Button("Continue fitting")) guarded([&] { start_fit(true); });
