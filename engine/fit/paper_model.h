@@ -101,6 +101,7 @@ private:
         torch::Tensor noise;            // [1,C,H/8,W/8] Z, fixed
         CoordMlp map{nullptr};          // M_b or M_f (residual over to_atlas)
         torch::Tensor residual_scale;   // [2] grid units of residual_px
+        bool learn_residual = true;     // false: the geometric mapping only (static camera bg)
     };
     torch::Tensor coords(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& t) const;
     torch::Tensor lattice(const std::vector<int64_t>& frames) const;  // [B,h,w,3] normalised p
