@@ -1,17 +1,20 @@
 // The fit end to end on tiny generated clips: it beats its input, resumes after kill -9 to the
 // same result, is deterministic per seed, and refuses bad inputs with clear messages.
-#include <doctest/doctest.h>
-
 #include <nlohmann/json.hpp>
 #include <torch/torch.h>
+#undef CHECK  // glog's (through torch), which aborts: doctest's below
+
+#include <doctest/doctest.h>
 
 #include <algorithm>
 
 #include "io/clip.h"
 #include "metrics/metrics.h"
+#include "fit/fit_engine.h"
 #include "fit/fit_setup.h"
 #include "project/project.h"
 #include "test_util.h"
+#include "util/error.h"
 
 using namespace refocus;
 using namespace refocus::test;
@@ -79,6 +82,43 @@ TEST_CASE("fast fit of a tiny clip beats its input and exports every pass") {
     // The project remembers the fit.
     r = cli("info '" + c.project.string() + "'");
     CHECK(r.output.find("holds:    fit") != std::string::npos);
+}
+
+TEST_CASE("fast model renders a margin past the frame edge; the reblur crops it back") {
+    // Near an edge the lens gathered light from outside the frame: the atlas reaches past it by
+    // the widest blur support, and training blurs the padded render (FitModel::render_padded).
+    const int64_t T = 3, H = 24, W = 32;
+    torch::manual_seed(0);
+    auto d = std::make_shared<FitData>();
+    d->frames = T, d->height = H, d->width = W;
+    d->input = torch::rand({T, 3, H, W});
+    d->radius = torch::full({T, H, W}, 2.0);
+    d->to_ref = torch::eye(3, torch::kFloat64).expand({T, 3, 3}).contiguous();
+    FitOptions o;
+    o.preset = "fast";
+    o.iters = 1;
+    FitEngine e(d, o);
+    const int64_t P = e.model().max_pad();
+    REQUIRE(P >= 3);  // support of a 2 px disk plus its soft edge
+    Layers a = e.model().render({0, 2}), b = e.model().render_padded({0, 2}, P);
+    REQUIRE(b.sharp.size(2) == H + 2 * P);
+    REQUIRE(b.sharp.size(3) == W + 2 * P);
+    CHECK(torch::allclose(b.sharp.narrow(2, P, H).narrow(3, P, W), a.sharp, 1e-5, 1e-5));
+    // The margin starts as the frame's edge carried outward.
+    CHECK((b.sharp.select(3, 0) - b.sharp.select(3, P)).abs().max().item<double>() < 1e-4);
+    CHECK((b.sharp.select(2, H + 2 * P - 1) - b.sharp.select(2, P + H - 1)).abs().max().item<double>() < 1e-4);
+    auto rb = e.reblur(b, {0, 2}), rb0 = e.reblur(a, {0, 2});
+    REQUIRE(rb.sizes() == rb0.sizes());
+    // Two supports from the edges the two agree; at the edge they differ.
+    auto inner = [&](const torch::Tensor& x) {
+        return x.narrow(2, 2 * P, H - 4 * P).narrow(3, 2 * P, W - 4 * P);
+    };
+    CHECK(torch::allclose(inner(rb), inner(rb0), 1e-4, 1e-4));
+    CHECK(!torch::allclose(rb.select(3, 0), rb0.select(3, 0), 1e-3, 1e-3));
+    CHECK(torch::isfinite(rb).all().item<bool>());
+    CHECK_THROWS_WITH_AS(e.model().render_padded({0}, P + 1), doctest::Contains("padding"), Error);
+    e.step();
+    CHECK(e.snapshot().step == 1);
 }
 
 TEST_CASE("resume after kill -9 matches an uninterrupted run; same seed, same result") {

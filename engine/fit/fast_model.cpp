@@ -29,18 +29,30 @@ torch::Tensor upsample(const torch::Tensor& x, int64_t h, int64_t w, bool corner
                                  .align_corners(corners));
 }
 
+// Replicates the edge of [B,C,H,W] `pad` px outward.
+torch::Tensor pad_edges(const torch::Tensor& x, int64_t pad) {
+    if (pad == 0) return x;
+    return F::pad(x, F::PadFuncOptions({pad, pad, pad, pad}).mode(torch::kReplicate));
+}
+
+torch::Tensor pixel_grid(int64_t H, int64_t W, int64_t pad) {
+    auto ys = torch::arange(-pad, H + pad, torch::kFloat32), xs = torch::arange(-pad, W + pad, torch::kFloat32);
+    auto grid = torch::meshgrid({ys, xs}, "ij");
+    return torch::stack({grid[1].flatten(), grid[0].flatten(), torch::ones({grid[0].numel()})}, 1);
+}
+
 }  // namespace
 
 FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d), m_opts(opts) {
     const int64_t T = d.frames, H = d.height, W = d.width;
-    auto ys = torch::arange(H, torch::kFloat32), xs = torch::arange(W, torch::kFloat32);
-    auto grid = torch::meshgrid({ys, xs}, "ij");
-    m_pixels = torch::stack({grid[1].flatten(), grid[0].flatten(), torch::ones({H * W})}, 1);
+    const int64_t P = opts.pad;
+    m_pixels = pixel_grid(H, W, 0);
+    m_pixels_pad = pixel_grid(H, W, P);
     const int64_t gh = H / opts.warp_cell_px + 2, gw = W / opts.warp_cell_px + 2;
 
-    // Background atlas: the bounding box of every frame mapped into the reference frame.
+    // Background atlas: the bounding box of every (padded) frame mapped into the reference frame.
     auto to_ref = d.to_ref.to(torch::kFloat64).contiguous();
-    const AtlasBox box = mapped_frames_box(to_ref, H, W);
+    const AtlasBox box = mapped_frames_box(torch::matmul(to_ref, translation(-P, -P)), H + 2 * P, W + 2 * P);
     m_bg.origin_x = box.origin_x;
     m_bg.origin_y = box.origin_y;
     m_bg.width = box.width;
@@ -137,15 +149,17 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
     }
 }
 
-torch::Tensor FastModel::map_coords(const Atlas& a, const std::vector<int64_t>& frames) const {
+torch::Tensor FastModel::map_coords(const Atlas& a, const std::vector<int64_t>& frames, int64_t pad) const {
     const int64_t H = m_data.height, W = m_data.width, B = frames.size();
+    if (pad != 0 && pad != m_opts.pad) throw Error("fast model: padding " + std::to_string(pad) + " px unsupported");
+    const auto& pixels = pad ? m_pixels_pad : m_pixels;
     auto idx = torch::tensor(frames, torch::kLong);
     auto m = a.to_atlas.index_select(0, idx);                  // [B,3,3]
-    auto p = torch::matmul(m, m_pixels.t());                   // [B,3,HW]
+    auto p = torch::matmul(m, pixels.t());                     // [B,3,HW]
     auto xy = p.narrow(1, 0, 2) / p.narrow(1, 2, 1);           // [B,2,HW]
-    auto px = xy.view({B, 2, H, W});
-    if (a.learn_warp || a.warp.requires_grad())
-        px = px + upsample(a.warp.index_select(0, idx), H, W, true);
+    auto px = xy.view({B, 2, H + 2 * pad, W + 2 * pad});
+    if (a.learn_warp || a.warp.requires_grad())  // the residual warp is held constant past the edge
+        px = px + pad_edges(upsample(a.warp.index_select(0, idx), H, W, true), pad);
     return px.permute({0, 2, 3, 1});                           // [B,H,W,2]
 }
 
@@ -165,7 +179,15 @@ torch::Tensor FastModel::compose(const Atlas& a) const {
 }
 
 torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight) const {
-    return fuse_frames(a.to_atlas, a.height, a.width, m_data.input, weight);
+    // The margin starts as the frames' edges replicated outward, trusted 1000x less than what a
+    // frame saw (a moving camera sees another frame's margin).
+    const int64_t P = m_opts.pad;
+    if (P == 0) return fuse_frames(a.to_atlas, a.height, a.width, m_data.input, weight);
+    auto inside = F::pad(torch::ones({1, 1, m_data.height, m_data.width}),
+                         F::PadFuncOptions({P, P, P, P}).value(1e-3));
+    auto shift = translation(-P, -P).to(a.to_atlas.dtype());
+    return fuse_frames(torch::matmul(a.to_atlas, shift), a.height, a.width, pad_edges(m_data.input, P),
+                       pad_edges(weight, P) * inside);
 }
 
 void FastModel::init_levels(Atlas& a, const torch::Tensor& fused) {
@@ -195,19 +217,19 @@ std::vector<ParamGroup> FastModel::param_groups() {
     return g;
 }
 
-Layers FastModel::render(const std::vector<int64_t>& frames) {
+Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad) {
     const int64_t B = frames.size(), H = m_data.height, W = m_data.width;
     Layers out;
-    out.uv_bg = to_grid(m_bg, map_coords(m_bg, frames));
+    out.uv_bg = to_grid(m_bg, map_coords(m_bg, frames, pad));
     out.bg = sample_bicubic(compose(m_bg).expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
     if (!m_two_layers) {
         out.sharp = out.bg;
         return out;
     }
-    out.uv_fg = to_grid(m_fg, map_coords(m_fg, frames));
+    out.uv_fg = to_grid(m_fg, map_coords(m_fg, frames, pad));
     out.fg = sample_bicubic(compose(m_fg).expand({B, 3, m_fg.height, m_fg.width}), out.uv_fg);
     auto idx = torch::tensor(frames, torch::kLong);
-    out.alpha = torch::sigmoid(upsample(m_alpha_logit.index_select(0, idx), H, W));
+    out.alpha = torch::sigmoid(pad_edges(upsample(m_alpha_logit.index_select(0, idx), H, W), pad));
     out.sharp = out.alpha * out.fg + (1.0 - out.alpha) * out.bg;  // paper eq. 1
     return out;
 }
@@ -250,7 +272,9 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
         // Mask bootstrap (Layered Neural Atlases §3.3): pull α toward the masks early, then let
         // the reconstruction decide the soft edge.
         const double decay = std::pow(0.5, double(step) / m_opts.bootstrap_halflife);
-        auto boot = (layers.alpha - m_data.mask.index_select(0, idx)).abs().mean();
+        const int64_t pad = (layers.alpha.size(3) - m_data.width) / 2;
+        auto alpha = layers.alpha.narrow(2, pad, m_data.height).narrow(3, pad, m_data.width);
+        auto boot = (alpha - m_data.mask.index_select(0, idx)).abs().mean();
         total = total + m_opts.w_bootstrap * decay * boot;
         terms["bootstrap"] = boot.item<double>();
     }

@@ -25,6 +25,8 @@ struct FastModelOptions {
     double w_bootstrap = 0.5;   // alpha to mask, halves every `bootstrap_halflife` steps
     int bootstrap_halflife = 400;
     int align_rounds = 2;       // ECC refinement rounds at initialisation (0: off)
+    int pad = 0;                // px of scene the atlases hold beyond each frame edge (the
+                                // engine passes the largest blur support; FitModel::max_pad)
 };
 
 class FastModel : public FitModel {
@@ -32,7 +34,9 @@ public:
     FastModel(const FitData& data, const FastModelOptions& opts);
     std::string preset() const override { return "fast"; }
     std::vector<ParamGroup> param_groups() override;
-    Layers render(const std::vector<int64_t>& frames) override;
+    Layers render(const std::vector<int64_t>& frames) override { return render_padded(frames, 0); }
+    int64_t max_pad() const override { return m_opts.pad; }
+    Layers render_padded(const std::vector<int64_t>& frames, int64_t pad) override;
     torch::Tensor priors(const Layers& layers, const std::vector<int64_t>& frames, int64_t step,
                          LossTerms& terms) override;
     torch::Tensor atlas_bg() override;
@@ -51,7 +55,8 @@ private:
         bool learn_warp = false;
     };
     torch::Tensor compose(const Atlas& a) const;                           // [1,3,Ha,Wa]
-    torch::Tensor map_coords(const Atlas& a, const std::vector<int64_t>& frames) const;  // [B,H,W,2] px
+    // Atlas pixel coordinates of frame pixels, `pad` px beyond the edges: [B,H+2pad,W+2pad,2].
+    torch::Tensor map_coords(const Atlas& a, const std::vector<int64_t>& frames, int64_t pad = 0) const;
     torch::Tensor to_grid(const Atlas& a, const torch::Tensor& px) const;  // → [-1,1]
     void init_levels(Atlas& a, const torch::Tensor& fused);
     torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight) const;  // sharpest-weighted
@@ -65,7 +70,8 @@ private:
 
     const FitData& m_data;
     FastModelOptions m_opts;
-    torch::Tensor m_pixels;  // [H*W,3] homogeneous pixel centres
+    torch::Tensor m_pixels;      // [H*W,3] homogeneous pixel centres
+    torch::Tensor m_pixels_pad;  // the same over the frame padded by opts.pad
     Atlas m_bg, m_fg;
     bool m_two_layers = false;
     torch::Tensor m_alpha_logit;  // [T,1,H/4,W/4]

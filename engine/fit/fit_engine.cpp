@@ -2,6 +2,7 @@
 
 #include <torch/optim.h>
 #include <torch/serialize.h>
+#include <torch/nn/functional.h>
 #include <torch/torch.h>
 
 #include <nlohmann/json.hpp>
@@ -38,6 +39,11 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         env("REFOCUS_FAST_ALIGN_ROUNDS", rounds);
         o.warp_cell_px = int(cell);
         o.align_rounds = int(rounds);
+        // The atlases reach past the frame by the widest blur support, so that edge pixels are
+        // explained by the scene beyond the edge (FitModel::render_padded).
+        double pad = std::ceil(lens_blur_support(data.radius.max().item<double>(), LensBlurParams{}));
+        env("REFOCUS_FAST_PAD", pad);
+        o.pad = int(std::clamp(pad, 0.0, 48.0));
         return std::make_unique<FastModel>(data, o);
     }
     if (preset == "paper") return std::make_unique<PaperModel>(data, PaperModelOptions{}, seed);
@@ -61,6 +67,13 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     }
     m_model = make_model(m_opts.preset, *m_data, m_opts.seed);
     if (m_model) {
+        m_pad = m_model->max_pad();
+        if (m_pad > 0) {
+            namespace F = torch::nn::functional;
+            m_radius_pad = F::pad(m_data->radius.unsqueeze(1),
+                                  F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
+                               .squeeze(1);
+        }
         make_optimizer();
     } else {
         m_perframe = m_data->input.clone();
@@ -112,9 +125,13 @@ std::vector<int64_t> FitEngine::next_batch() {
 }
 
 torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& frames) {
+    // Layers rendered with a margin (render_padded) are blurred with the radius maps padded
+    // alike and cropped back to the frame.
+    const int64_t pad = (L.sharp.size(3) - m_data->width) / 2;
+    if (pad != 0 && pad != m_pad) throw Error("reblur: layers padded by an unexpected margin");
     std::vector<torch::Tensor> out;
     for (size_t b = 0; b < frames.size(); ++b) {
-        auto r = m_data->radius[frames[b]];
+        auto r = pad ? m_radius_pad[frames[b]] : m_data->radius[frames[b]];
         if (!L.fg.defined()) {
             out.push_back(lens_blur(L.sharp[b], r, m_opts.blur));  // paper eq. 3
             continue;
@@ -125,7 +142,8 @@ torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& fra
         auto bl = lens_blur(stack, r, m_opts.blur);
         out.push_back(bl.narrow(0, 0, 3) + (1.0 - bl.narrow(0, 3, 1)) * bl.narrow(0, 4, 3));
     }
-    return torch::stack(out);
+    auto rb = torch::stack(out);
+    return pad ? rb.narrow(2, pad, m_data->height).narrow(3, pad, m_data->width) : rb;
 }
 
 void FitEngine::step_perframe() {
@@ -168,7 +186,7 @@ void FitEngine::step() {
             static_cast<torch::optim::AdamOptions&>(groups[i].options()).lr(m_base_lr[i] * factor);
 
         auto frames = next_batch();
-        Layers L = m_model->render(frames);
+        Layers L = m_model->render_padded(frames, m_pad);
         auto rb = srgb_encode(reblur(L, frames));
         auto idx = torch::tensor(frames, torch::kLong);
         auto target = m_target.index_select(0, idx);

@@ -89,6 +89,8 @@ private:
     std::unique_ptr<torch::optim::Optimizer> m_optim;
     std::vector<double> m_base_lr;
     torch::Tensor m_target;     // [T,3,H,W] sRGB-encoded input
+    int64_t m_pad = 0;          // training renders this margin beyond the frame (max_pad)
+    torch::Tensor m_radius_pad; // [T,H+2pad,W+2pad] radius, edges replicated
     std::mt19937_64 m_rng;
     std::vector<int64_t> m_perm;
     size_t m_perm_pos = 0;

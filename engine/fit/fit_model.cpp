@@ -18,4 +18,11 @@ void FitModel::load_state(const std::map<std::string, torch::Tensor>& s) {
     }
 }
 
+Layers FitModel::render_padded(const std::vector<int64_t>& frames, int64_t pad) {
+    if (pad > max_pad())
+        throw Error("the " + preset() + " model renders at most " + std::to_string(max_pad()) +
+                    " px beyond the frame (asked for " + std::to_string(pad) + ")");
+    return render(frames);
+}
+
 }  // namespace refocus

@@ -50,6 +50,13 @@ public:
     virtual std::string preset() const = 0;
     virtual std::vector<ParamGroup> param_groups() = 0;
     virtual Layers render(const std::vector<int64_t>& frames) = 0;
+    // Frames rendered with `pad` px of scene beyond every edge ([B,·,H+2·pad,W+2·pad]). The
+    // input was shot through a lens that saw past the frame: a pixel near the edge holds light
+    // from outside it, so the reblur of paper eq. 3 is computed on the padded frame and cropped
+    // (the engine does this in training). Models that cannot extrapolate their mapping return
+    // 0 from max_pad().
+    virtual int64_t max_pad() const { return 0; }
+    virtual Layers render_padded(const std::vector<int64_t>& frames, int64_t pad);
     // Priors of paper eq. 4 that the model owns (sparsity, rigidity, flow, TV, mask bootstrap),
     // weighted, summed; each term's value is recorded in `terms`.
     virtual torch::Tensor priors(const Layers& layers, const std::vector<int64_t>& frames,
