@@ -71,11 +71,11 @@ std::vector<double> parse_times(const std::string& s) {
 }  // namespace
 
 int bench_fit(int argc, char** argv) {
-    Args a(argc, argv, 3, {"oracle-coc"});
-    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "at", "csv", "work", "seed"});
+    Args a(argc, argv, 3, {"oracle-coc", "oracle-mask"});
+    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "oracle-mask", "at", "csv", "work", "seed"});
     if (!a.has("clip"))
         throw Error("usage: refocus bench fit --clip <synth-dir> --preset fast|paper|perframe "
-                    "[--minutes M] [--oracle-coc] [--at 0.5,1,2,5,10] [--csv out.csv]");
+                    "[--minutes M] [--oracle-coc] [--oracle-mask] [--at 0.5,1,2,5,10] [--csv out.csv]");
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
@@ -96,6 +96,8 @@ int bench_fit(int argc, char** argv) {
     s.fit.iters = a.get_int("iters", 0);
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
     if (oracle) s.setup.coc_path = (clip / "coc_%04d.exr").string();
+    const bool oracle_mask = a.has("oracle-mask");
+    if (oracle_mask) s.setup.mask_path = (clip / "alpha_%04d.png").string();
     PrepareLog log([](const std::string& l) { std::fprintf(stderr, "  %s\n", l.c_str()); });
     auto data = build_fit_data(project, s.setup, log);
     FitEngine engine(data, s.fit);
@@ -104,9 +106,10 @@ int bench_fit(int argc, char** argv) {
     std::vector<Row> rows;
     const double in_psnr = mean_psnr(input, gt), in_ssim = mean_ssim(input, gt);
     const double in_t = gt.size() > 1 ? tpsnr(input, gt) : 0.0;
-    std::printf("clip %s (%dx%d, %d frames), preset %s, radius %s\n", clip.string().c_str(),
+    std::printf("clip %s (%dx%d, %d frames), preset %s, radius %s, masks %s\n", clip.string().c_str(),
                 project.width, project.height, project.frames, preset.c_str(),
-                oracle ? "ground truth (--coc)" : "estimated");
+                oracle ? "ground truth (--coc)" : "estimated",
+                oracle_mask ? "ground-truth alpha (--mask)" : "automatic");
     std::printf("input vs ground truth: PSNR %.2f dB  SSIM %.4f  tPSNR %.2f dB\n", in_psnr, in_ssim, in_t);
     std::printf("%8s %7s %9s %7s %9s %12s %7s\n", "minutes", "step", "PSNR", "SSIM", "tPSNR", "reblur PSNR",
                 "frames");
@@ -142,7 +145,8 @@ int bench_fit(int argc, char** argv) {
         csv << "clip,preset,radius,minutes,step,psnr,ssim,tpsnr,reblur_psnr,input_psnr,input_tpsnr,"
                "frames_done,input_ssim\n";
         for (const Row& x : rows)
-            csv << clip.filename().string() << "," << preset << "," << (oracle ? "oracle" : "estimated")
+            csv << clip.filename().string() << "," << preset << ","
+                << (oracle ? "oracle" : "estimated") << (oracle_mask ? "+mask" : "")
                 << "," << x.minutes << "," << x.step << "," << x.psnr << "," << x.ssim << ","
                 << x.tpsnr << "," << x.reblur_psnr << "," << x.in_psnr << "," << x.in_tpsnr << ","
                 << x.frames_done << "," << x.in_ssim << "\n";

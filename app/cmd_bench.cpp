@@ -191,7 +191,7 @@ const Bench kBenches[] = {
      "             [--tensor-reps N] [--no-tensor] [--tensor-max-gb G]\n"
      "             lens blur layer: fast path vs LibTorch tensor ops"},
     {"fit", bench_fit,
-     "fit --clip <synth-dir> [--preset fast|paper|perframe] [--minutes M] [--oracle-coc]\n"
+     "fit --clip <synth-dir> [--preset fast|paper|perframe] [--minutes M] [--oracle-coc] [--oracle-mask]\n"
      "             [--at 0.5,1,2,5,10] [--csv out.csv]\n"
      "             run time against error: sharp PSNR/SSIM/tPSNR vs ground truth, reblur PSNR"},
 };

@@ -8,7 +8,9 @@ torch::Tensor image_to_tensor(const Image& img) {
     if (img.empty()) throw Error("cannot convert an empty image to a tensor");
     auto t = torch::from_blob(const_cast<float*>(img.data()),
                               {img.height, img.width, img.channels}, torch::kFloat32);
-    return t.permute({2, 0, 1}).contiguous();  // contiguous() copies: the tensor owns its data
+    // clone(), not contiguous(): for one channel the permuted view is already contiguous, and
+    // contiguous() would hand back a tensor aliasing img's memory (dangling once img is gone).
+    return t.permute({2, 0, 1}).clone(at::MemoryFormat::Contiguous);
 }
 
 Image tensor_to_image(const torch::Tensor& t_in) {
