@@ -79,8 +79,24 @@ bool plausible(const cv::Mat& H, int w, int h) {
 
 // Homography from frame t+1 to frame t from tracked corners; returns inlier count (0 = failed).
 int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions& o, cv::Mat& H) {
+    // Corners per cell of a grid, each cell's quality threshold relative to its own best corner:
+    // one frame-wide threshold puts nearly every corner on whatever is in focus, and when that is
+    // a moving subject in front of a blurred wall, RANSAC's consensus is the subject's motion
+    // (measured on the synth rack clip: the late homographies followed the subject, the wall
+    // drifted 2 px and the subject's own motion read as zero).
     std::vector<cv::Point2f> p0;
-    cv::goodFeaturesToTrack(g0, p0, o.max_features, o.feature_quality, o.feature_min_distance);
+    const int gx = std::max(1, o.feature_grid_x), gy = std::max(1, o.feature_grid_y);
+    const int per_cell = std::max(1, o.max_features / (gx * gy));
+    for (int cy = 0; cy < gy; ++cy)
+        for (int cx = 0; cx < gx; ++cx) {
+            const int x0 = cx * g0.cols / gx, x1 = (cx + 1) * g0.cols / gx;
+            const int y0 = cy * g0.rows / gy, y1 = (cy + 1) * g0.rows / gy;
+            if (x1 - x0 < 8 || y1 - y0 < 8) continue;
+            std::vector<cv::Point2f> cell;
+            cv::goodFeaturesToTrack(g0(cv::Rect(x0, y0, x1 - x0, y1 - y0)), cell, per_cell,
+                                    o.feature_quality_cell, o.feature_min_distance);
+            for (const auto& p : cell) p0.emplace_back(p.x + x0, p.y + y0);
+        }
     if (int(p0.size()) < o.min_inliers) return 0;
     std::vector<cv::Point2f> p1, back;
     std::vector<unsigned char> st1, st2;
