@@ -84,7 +84,7 @@ TEST_CASE("fast fit of a tiny clip beats its input and exports every pass") {
     CHECK(r.output.find("holds:    fit") != std::string::npos);
 }
 
-TEST_CASE("fast model renders a margin past the frame edge; the reblur crops it back") {
+TEST_CASE("fast model renders a margin past the frame edge; the reblur crops it back; checkpoints keep the figures") {
     // Near an edge the lens gathered light from outside the frame: the atlas reaches past it by
     // the widest blur support, and training blurs the padded render (FitModel::render_padded).
     const int64_t T = 3, H = 24, W = 32;
@@ -119,6 +119,17 @@ TEST_CASE("fast model renders a margin past the frame edge; the reblur crops it 
     CHECK_THROWS_WITH_AS(e.model().render_padded({0}, P + 1), doctest::Contains("padding"), Error);
     e.step();
     CHECK(e.snapshot().step == 1);
+
+    // A checkpoint keeps the last step's figures: a reopened project shows them, not zeros.
+    const fs::path ck = scratch_dir("fit_checkpoint_figures");
+    e.save_checkpoint(ck);
+    FitEngine e2(d, o);
+    e2.load_checkpoint(ck);
+    CHECK(e2.snapshot().step == 1);
+    CHECK(e2.snapshot().loss == doctest::Approx(e.snapshot().loss));
+    CHECK(e2.snapshot().loss > 0);
+    CHECK(e2.snapshot().reblur_psnr == doctest::Approx(e.snapshot().reblur_psnr));
+    CHECK(e2.snapshot().terms.count("l1") == 1);
 }
 
 TEST_CASE("resume after kill -9 matches an uninterrupted run; same seed, same result") {

@@ -281,7 +281,11 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
     }
     std::ostringstream rng;
     rng << m_rng;
+    FitSnapshot last = snapshot();  // the last step's figures, shown again after a reopen
     nlohmann::json j = {{"version", kCheckpointVersion},
+                        {"loss", last.loss},
+                        {"reblur_psnr", last.reblur_psnr},
+                        {"terms", last.terms},
                         {"preset", m_opts.preset},
                         {"frames", m_data->frames},
                         {"height", m_data->height},
@@ -371,6 +375,10 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     std::lock_guard<std::mutex> l2(m_snap_mutex);
     m_snap.step = m_step;
     m_snap.elapsed_s = m_elapsed;
+    // Older checkpoints lack the figures: they stay 0 until the next step.
+    m_snap.loss = j.value("loss", 0.0);
+    m_snap.reblur_psnr = j.value("reblur_psnr", 0.0);
+    if (j.contains("terms") && j["terms"].is_object()) m_snap.terms = j["terms"].get<LossTerms>();
     m_snap.atlas_version++;
 }
 
