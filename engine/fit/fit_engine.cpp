@@ -19,6 +19,8 @@
 
 namespace refocus {
 
+namespace F = torch::nn::functional;
+
 using Clock = std::chrono::steady_clock;
 
 std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& data, uint64_t seed) {
@@ -64,12 +66,12 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     {
         torch::NoGradGuard g;
         m_target = srgb_encode(m_data->input);
+        m_resid = torch::full({m_data->frames, 1, m_data->height, m_data->width}, -1.0f);
     }
     m_model = make_model(m_opts.preset, *m_data, m_opts.seed);
     if (m_model) {
         m_pad = m_model->max_pad();
         if (m_pad > 0) {
-            namespace F = torch::nn::functional;
             m_radius_pad = F::pad(m_data->radius.unsqueeze(1),
                                   F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
                                .squeeze(1);
@@ -146,6 +148,30 @@ torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& fra
     return pad ? rb.narrow(2, pad, m_data->height).narrow(3, pad, m_data->width) : rb;
 }
 
+torch::Tensor FitEngine::robust_target(const torch::Tensor& rb, const torch::Tensor& target,
+                                       const std::vector<int64_t>& frames) {
+    if (!(m_opts.robust_c > 0)) return target;
+    torch::NoGradGuard no_grad;
+    // Residual of this step, smoothed over 5x5 px (a single pixel's error is noise), folded into
+    // the frame's running residual (the atlases move slowly; one step's error alone flickers).
+    auto e = (rb.detach() - target).abs().mean(1, true);
+    e = F::avg_pool2d(F::pad(e, F::PadFuncOptions({2, 2, 2, 2}).mode(torch::kReplicate)),
+                      F::AvgPool2dFuncOptions(5).stride(1));
+    std::vector<torch::Tensor> w;
+    for (size_t b = 0; b < frames.size(); ++b) {
+        auto r = m_resid[frames[b]];
+        auto fresh = e[b];
+        r.copy_(torch::where(r < 0, fresh, 0.7 * r + 0.3 * fresh));
+        const double scale = std::max(r.median().item<double>(), 1e-4);
+        w.push_back(1.0 / (1.0 + (r / (m_opts.robust_c * scale)).pow(2)));
+    }
+    if (m_step < m_opts.robust_warmup) return target;
+    // Where the weight is low the target becomes the current reblur: no gradient from there,
+    // for the L1 and the MS-SSIM terms alike.
+    auto wt = torch::stack(w);
+    return wt * target + (1.0 - wt) * rb.detach();
+}
+
 void FitEngine::step_perframe() {
     // The baseline: non-blind MAP deconvolution with a TV prior, one frame per step.
     const int64_t t = m_step;
@@ -198,8 +224,9 @@ void FitEngine::step() {
         auto rb = srgb_encode(reblur(L, frames));
         auto idx = torch::tensor(frames, torch::kLong);
         auto target = m_target.index_select(0, idx);
-        auto l1 = (rb - target).abs().mean();
-        auto ms = ms_ssim_loss(rb, target);
+        auto fit_target = robust_target(rb, target, frames);
+        auto l1 = (rb - fit_target).abs().mean();
+        auto ms = ms_ssim_loss(rb, fit_target);
         auto reco = (1.0 - m_opts.ms_ssim_share) * l1 + m_opts.ms_ssim_share * ms;
         auto loss = m_opts.w_reco * reco + m_model->priors(L, frames, m_step, terms);
         if (!torch::isfinite(loss).item<bool>())
@@ -263,6 +290,7 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
         torch::serialize::OutputArchive ar;
         if (m_model) {
             for (auto& [name, t] : m_model->state()) ar.write("model/" + name, t.detach());
+            ar.write("robust_resid", m_resid);
             torch::serialize::OutputArchive opt;
             m_optim->save(opt);
             ar.write("optimizer", opt);
@@ -354,6 +382,8 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
             s[name] = v;
         }
         m_model->load_state(s);
+        torch::Tensor resid;  // older checkpoints lack it: the running residual starts again
+        if (ar.try_read("robust_resid", resid) && resid.sizes().equals(m_resid.sizes())) m_resid.copy_(resid);
         torch::serialize::InputArchive opt;
         ar.read("optimizer", opt);
         m_optim->load(opt);

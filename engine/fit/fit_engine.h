@@ -30,6 +30,16 @@ struct FitOptions {
     double ms_ssim_share = 0.84;   // L_reco = 0.84·(1 − MS-SSIM) + 0.16·L1 (Zhao et al. 2016)
     double checkpoint_seconds = 60.0;
     LensBlurParams blur;           // the reblur kernel: paper's disk, β = 2
+    // Robust reconstruction (IRLS, Geman-McClure weights): pixels whose reblur residual stays
+    // far above their frame's typical residual — what the model cannot explain (an occlusion
+    // edge fitted as one layer, a mask that misses the subject) — stop pulling on the atlases.
+    // Weight 1 / (1 + (e / (c · median_t e))²) of a running residual e; 0 turns it off.
+    // Synth tripod clip, fast, 5-min schedule, sharp PSNR at 0.5/1/2/3 min: off 26.72/25.89/24.95/
+    // 24.57 · c 3: 27.30/26.69/26.09/25.92 · c 1.5: 27.41/27.16/26.64 · c 1: 27.63/27.27/26.86;
+    // rack 1 min: off 20.58 · c 1.5: 20.67. 1.5 keeps most pixels near full weight on footage
+    // the clips do not represent.
+    double robust_c = 1.5;
+    int64_t robust_warmup = 60;    // steps before the weights apply (the first fit is blurry)
 };
 
 struct FitSnapshot {
@@ -78,6 +88,10 @@ public:
     std::mutex& model_mutex() { return m_model_mutex; }  // held during step() and renders
 
 private:
+    // The reconstruction target with robust weights applied (see FitOptions::robust_c); updates
+    // the running residual of `frames`.
+    torch::Tensor robust_target(const torch::Tensor& rb, const torch::Tensor& target,
+                                const std::vector<int64_t>& frames);
     std::vector<int64_t> next_batch();
     void make_optimizer();
     double budget_fraction() const;
@@ -89,6 +103,7 @@ private:
     std::unique_ptr<torch::optim::Optimizer> m_optim;
     std::vector<double> m_base_lr;
     torch::Tensor m_target;     // [T,3,H,W] sRGB-encoded input
+    torch::Tensor m_resid;      // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
     int64_t m_pad = 0;          // training renders this margin beyond the frame (max_pad)
     torch::Tensor m_radius_pad; // [T,H+2pad,W+2pad] radius, edges replicated
     std::mt19937_64 m_rng;
