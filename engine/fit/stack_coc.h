@@ -22,6 +22,7 @@ struct StackCocOptions {
     int window = 4;        // half-size of the matching window (px)
     int contrast_window = 3;
     double min_confidence = 1e-4;  // cost spread (max − min) below this: not measured here
+    int spread_px = 6;             // window of the confidence-weighted spread (then H/10 for the rest)
     double min_explained = 0.6;    // share of local variance the best match must explain to count
 };
 
