@@ -32,8 +32,9 @@ Row evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<
         if (!engine.frame_done(t)) continue;
         Layers L = engine.render_frame(t);
         torch::NoGradGuard ng;
-        sharp.push_back(tensor_to_image(L.sharp[0].clamp_min(0)));
         reblur.push_back(tensor_to_image(engine.reblur(L, {t})[0].clamp_min(0)));
+        engine.apply_fallback(L, t);
+        sharp.push_back(tensor_to_image(L.sharp[0].clamp_min(0)));
         g.push_back(gt[t]);
         in.push_back(input[t]);
     }

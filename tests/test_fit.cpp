@@ -253,7 +253,7 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
     // A static one-layer clip whose frame 2 carries a bright square (a flash, a passer-by the
     // masks missed): the atlas is shared, so the square can only be explained in frame 2 at the
     // cost of the other frames. With robust weights the square's pixels soon stop pulling.
-    const int64_t T = 6, H = 24, W = 32;
+    const int64_t T = 6, H = 36, W = 48;
     torch::manual_seed(0);
     auto clean = torch::rand({1, 3, H / 4, W / 4});
     clean = torch::nn::functional::interpolate(
@@ -263,11 +263,13 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
         auto d = std::make_shared<FitData>();
         d->frames = T, d->height = H, d->width = W;
         d->input = clean.expand({T, 3, H, W}).clone();
-        d->input[2].narrow(1, 8, 8).narrow(2, 12, 8).fill_(1.0);
+        d->input[2].narrow(1, 10, 14).narrow(2, 16, 14).fill_(1.0);
         d->radius = torch::full({T, H, W}, 0.0);
         d->to_ref = torch::eye(3, torch::kFloat64).expand({T, 3, 3}).contiguous();
         return d;
     };
+    auto patch = [](const torch::Tensor& x) { return x.narrow(-2, 10, 14).narrow(-1, 16, 14); };
+    double fallback_in = 0, fallback_out = 1;
     auto leak = [&](double c) {
         FitOptions o;
         o.preset = "fast";
@@ -276,11 +278,25 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
         FitEngine e(make(), o);
         while (!e.done()) e.step();
         auto s = e.render_frame(0).sharp;  // a frame without the square
-        auto diff = (s[0] - clean[0]).narrow(1, 8, 8).narrow(2, 12, 8).abs().mean().item<double>();
+        auto diff = patch(s[0] - clean[0]).abs().mean().item<double>();
         REQUIRE(std::isfinite(diff));
+        // The sharp plate of frame 2 falls back to the shot at the patch only; frame 0 keeps
+        // the fit everywhere.
+        auto f = e.fallback_weight(2);
+        REQUIRE(f.defined());
+        fallback_in = patch(f).mean().item<double>();
+        fallback_out = f[0][0].narrow(1, 0, 6).max().item<double>();
+        auto f0 = e.fallback_weight(0);
+        CHECK((!f0.defined() || f0.max().item<double>() < 0.05));
+        Layers L2 = e.render_frame(2);
+        e.apply_fallback(L2, 2);
+        CHECK(patch(L2.sharp[0]).mean().item<double>() > 0.9);
         return diff;
     };
     const double off = leak(0.0), on = leak(1.5);
+    MESSAGE("fallback weight of frame 2: patch " << fallback_in << ", left 6 columns at most " << fallback_out);
+    CHECK(fallback_in > 0.9);
+    CHECK(fallback_out < 0.05);
     MESSAGE("square leaking into frame 0: robust off " << off << ", on " << on);
     CHECK(on < 0.6 * off);
 }

@@ -11,7 +11,9 @@ namespace refocus {
 
 FrameMaps frame_maps(FitEngine& engine, int t) {
     torch::NoGradGuard no_grad;
-    return frame_maps(engine.render_frame(t));  // holds model_mutex() while it renders
+    Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
+    engine.apply_fallback(L, t);
+    return frame_maps(L);
 }
 
 FrameMaps frame_maps(const Layers& L) {

@@ -150,7 +150,8 @@ torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& fra
 
 torch::Tensor FitEngine::robust_target(const torch::Tensor& rb, const torch::Tensor& target,
                                        const std::vector<int64_t>& frames) {
-    if (!(m_opts.robust_c > 0)) return target;
+    const bool robust = m_opts.robust_c > 0;
+    if (!robust && !(m_opts.fallback_k > 0)) return target;  // nothing needs the residual
     torch::NoGradGuard no_grad;
     // Residual of this step, smoothed over 5x5 px (a single pixel's error is noise), folded into
     // the frame's running residual (the atlases move slowly; one step's error alone flickers).
@@ -162,10 +163,11 @@ torch::Tensor FitEngine::robust_target(const torch::Tensor& rb, const torch::Ten
         auto r = m_resid[frames[b]];
         auto fresh = e[b];
         r.copy_(torch::where(r < 0, fresh, 0.7 * r + 0.3 * fresh));
+        if (!robust) continue;
         const double scale = std::max(r.median().item<double>(), 1e-4);
         w.push_back(1.0 / (1.0 + (r / (m_opts.robust_c * scale)).pow(2)));
     }
-    if (m_step < m_opts.robust_warmup) return target;
+    if (!robust || m_step < m_opts.robust_warmup) return target;
     // Where the weight is low the target becomes the current reblur: no gradient from there,
     // for the L1 and the MS-SSIM terms alike.
     auto wt = torch::stack(w);
@@ -272,6 +274,38 @@ Layers FitEngine::render_frame(int t) {
         return L;
     }
     return m_model->render({t});
+}
+
+torch::Tensor FitEngine::fallback_weight(int t) const {
+    if (!m_model || !(m_opts.fallback_k > 0) || t < 0 || t >= m_data->frames) return {};
+    torch::NoGradGuard g;
+    auto r = m_resid[t].unsqueeze(0);  // [1,1,H,W]
+    if ((r < 0).any().item<bool>()) return {};
+    const double lo = std::max(m_opts.fallback_k * r.median().item<double>(), m_opts.fallback_min);
+    auto x = ((r - lo) / lo).clamp(0, 1);
+    auto f = x * x * (3 - 2 * x);  // smoothstep(lo, 2·lo)
+    // Opened by 9 px: the thin band along an occlusion edge that one layer explains poorly is
+    // still better fitted than the shot (it would flicker between the two); a subject the masks
+    // missed is a region.
+    const int e = 4;
+    if (e > 0) {
+        f = -F::max_pool2d(-f, F::MaxPool2dFuncOptions(2 * e + 1).stride(1).padding(e));
+        f = F::max_pool2d(f, F::MaxPool2dFuncOptions(2 * e + 1).stride(1).padding(e));
+    }
+    // Grown and feathered by 4 px: the residual is lowest at the middle of a flat region that
+    // is wrong all the same, and a hard seam would show.
+    f = F::max_pool2d(f, F::MaxPool2dFuncOptions(9).stride(1).padding(4));
+    f = F::avg_pool2d(F::pad(f, F::PadFuncOptions({4, 4, 4, 4}).mode(torch::kReplicate)),
+                      F::AvgPool2dFuncOptions(9).stride(1));
+    if (!(f > 1e-3).any().item<bool>()) return {};
+    return f;
+}
+
+void FitEngine::apply_fallback(Layers& L, int t) const {
+    auto f = fallback_weight(t);
+    if (!f.defined() || !L.sharp.defined()) return;
+    torch::NoGradGuard g;
+    L.sharp = (1.0 - f) * L.sharp + f * m_data->input[t].unsqueeze(0);
 }
 
 // ---------------------------------------------------------------- checkpoints

@@ -40,6 +40,10 @@ struct FitOptions {
     // the clips do not represent.
     double robust_c = 1.5;
     int64_t robust_warmup = 60;    // steps before the weights apply (the first fit is blurry)
+    // Fallback (FitEngine::fallback_weight): from `fallback_k` x the frame's median residual
+    // (and at least `fallback_min`, sRGB) the input shows through, fully at twice that.
+    double fallback_k = 4.0;
+    double fallback_min = 0.04;
 };
 
 struct FitSnapshot {
@@ -82,6 +86,13 @@ public:
     // Inference (no gradients). Frame t's layers, its reblur, and the atlases.
     Layers render_frame(int t);
     torch::Tensor reblur(const Layers& layers, const std::vector<int64_t>& frames);  // [B,3,H,W]
+    // Fallback to the shot: where frame t's reblur residual stayed far above what the model
+    // explains elsewhere (a subject the masks missed, ghosted over the wall), the sharp plate
+    // shows the input frame instead of a wrong reconstruction. [1,1,H,W] in [0,1] (1: input), or
+    // undefined when nothing falls back (perframe, a frame not trained yet, an old checkpoint).
+    torch::Tensor fallback_weight(int t) const;
+    // L.sharp (frame t, batch of one) blended with the input by fallback_weight(t).
+    void apply_fallback(Layers& L, int t) const;
     FitModel& model() { return *m_model; }
     const FitData& data() const { return *m_data; }
     const FitOptions& options() const { return m_opts; }

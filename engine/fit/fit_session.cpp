@@ -168,6 +168,9 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
     for (int t = first; t <= last; ++t) {
         Layers L = engine.render_frame(t);
         apply_edits(L, d_bg, d_fg);
+        // The sharp plate and what is made from it fall back to the shot where the fit failed;
+        // the reblur and the layers stay the model's.
+        if (pass == ExportPass::Sharp || needs_project) engine.apply_fallback(L, t);
         Image frame;
         if (needs_project) {
             const FrameMaps m = frame_maps(L);
