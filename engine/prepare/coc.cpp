@@ -202,8 +202,13 @@ Image weighted_guided_filter(const Image& guide, const Image& src, const Image& 
             a.at<float>(y, x) = ak;
             b.at<float>(y, x) = up - ak * ui;
         }
-    // Average the windows' linear models, each weighted by its confidence W.
-    const cv::Mat C = box(W), A = box(W.mul(a)), B = box(W.mul(b));
+    // Average the windows' linear models, each weighted by its confidence W — only the windows
+    // that have a model: counting the skipped ones (W < tiny) in C as well gave q = 0 wherever
+    // only such windows reached a pixel (lines of radius 0 along the edge of the measured area,
+    // which the fit deconvolved into dark streaks on the sample).
+    cv::Mat Wm;
+    cv::threshold(W, Wm, tiny, 0.0, cv::THRESH_TOZERO);
+    const cv::Mat C = box(Wm), A = box(Wm.mul(a)), B = box(Wm.mul(b));
     Image q(guide.width, guide.height, 1, 0.0f);
     if (coverage) *coverage = Image(guide.width, guide.height, 1, 0.0f);
     for (int y = 0; y < I.rows; ++y)
