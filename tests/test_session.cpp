@@ -110,6 +110,42 @@ TEST_CASE("document: save, autosave and recovery, save as, recent list") {
         CHECK(std::string(e.what()).find("not empty") != std::string::npos);
     }
     CHECK(recent_projects().at(0) == fs::absolute(dir / "copy").lexically_normal().string());
+
+    // The studio runs Save As in steps, the copy on its worker: a target inside the project is
+    // refused; the copy leaves the autosave behind, reports progress and can be cancelled; the
+    // document moves only when it is finished.
+    auto message_of = [](auto&& f) -> std::string {
+        try {
+            f();
+        } catch (const Error& e) {
+            return e.what();
+        }
+        return "";
+    };
+    CHECK(message_of([&] { doc.save_as_target((dir / "copy" / "inner").string()); }).find("inside the project") !=
+          std::string::npos);
+    fs::create_directories(doc.project().dir / ".autosave");
+    write_file_atomic(doc.project().dir / ".autosave" / "project.json", "{}");
+    int calls = 0, total = -1;
+    StudioDoc::copy_project_files(doc.project().dir, dir / "copy2", [&](int, int n) {
+        ++calls;
+        total = n;
+        return true;
+    });
+    CHECK(total > 3);
+    CHECK(calls == total + 1);
+    CHECK(fs::exists(dir / "copy2" / "project.json"));
+    CHECK(fs::exists(dir / "copy2" / "frames"));
+    CHECK_FALSE(fs::exists(dir / "copy2" / ".autosave"));
+    CHECK(message_of([&] {
+              StudioDoc::copy_project_files(doc.project().dir, dir / "copy3", [](int i, int) { return i < 1; });
+          }).find("cancelled") != std::string::npos);
+    CHECK(doc.project().dir == fs::absolute(dir / "copy"));
+    doc.finish_save_as(fs::absolute(dir / "copy2"));
+    CHECK(doc.project().dir == fs::absolute(dir / "copy2"));
+    StudioDoc reopened;
+    reopened.open((dir / "copy2").string());
+    CHECK(reopened.focus().aperture.keys.size() == 1);
 }
 
 TEST_CASE("fit worker: fit on its thread, render between steps, stop keeps the work") {

@@ -104,6 +104,12 @@ TEST_CASE("scripted studio session: new, fit, paint, keyframes, export, save, re
     Image input = p.read_frame(0);
     CHECK(red_pixels(sharp, 0, 0, sharp.width, sharp.height) > 200);
     CHECK(red_pixels(input, 0, 0, input.width, input.height) < 20);
+    // The time slice of the sharp view (row 31, through the stroke) shows the unsaved paint in
+    // the frames, as the viewer and the export do.
+    Image slice = read_image_file((dir / "slice_sharp.png").string()).image;
+    CHECK(slice.width == sharp.width);
+    CHECK(slice.height == p.frames);
+    CHECK(red_pixels(slice, 0, 0, slice.width, slice.height) > 10 * p.frames);
     // Refocused frames differ from the sharp plate (aperture 1.5, focus keyed).
     Image refocused = read_image_file((dir / "export/refocus/refocus_0002.png").string()).image;
     Image sharp2 = read_image_file((dir / "export/sharp/sharp_0002.png").string()).image;

@@ -88,6 +88,7 @@ void Studio::after_open() {
 }
 
 void Studio::open_project(const std::string& path) {
+    if (busy_with_files()) throw Error("wait until the project being copied or made is done");
     if (is_project_path(path)) {
         m_doc.open(path);
         after_open();
@@ -110,7 +111,7 @@ void Studio::open_project(const std::string& path) {
 void Studio::new_project(const std::string& clip, const std::string& dir) {
     // Ingesting decodes every frame into the EXR cache: minutes for a long clip, so it runs on
     // the worker with a progress bar; the project opens when it is done.
-    if (!m_ingest_dir.empty()) throw Error("a clip is already being ingested");
+    if (busy_with_files()) throw Error("a project is already being copied or made");
     if (clip.empty() || dir.empty()) throw Error("give a clip and a new project folder");
     m_worker->stop();
     m_ingest_dir = fs::absolute(dir).string();
@@ -132,11 +133,26 @@ void Studio::save() {
 }
 
 void Studio::save_as(const std::string& dir) {
+    // The copy holds the frame cache (gigabytes for a long clip): it runs on the worker with a
+    // progress bar, and the document moves to the copy when it is done (poll_results).
     if (!m_doc.is_open()) throw Error("no project is open");
+    if (busy_with_files()) throw Error("a project is already being copied or made");
+    const fs::path to = m_doc.save_as_target(dir);
     m_worker->stop();
-    m_doc.save_as(dir);
-    after_open();
-    m_info = "saved as " + m_doc.project().dir.string();
+    m_save_as_dir = to.string();
+    FitWorker* w = m_worker.get();
+    const fs::path from = m_doc.project().dir;
+    m_worker->post("save as " + to.string(), [w, from, to](FitEngine*, const Project&) {
+        try {
+            StudioDoc::copy_project_files(from, to, [w](int i, int n) {
+                w->set_job_progress(n > 0 ? double(i) / n : 1.0);
+                return !w->cancelled();
+            });
+            w->post_result("copied:" + to.string());
+        } catch (const std::exception& e) {
+            w->post_result(std::string("save as failed:") + e.what());
+        }
+    });
 }
 
 void Studio::request_close() {
@@ -176,9 +192,10 @@ void Studio::screenshot(const std::string& path) {
 void Studio::draw_menu() {
     if (!ImGui::BeginMainMenuBar()) return;
     if (ImGui::BeginMenu("File")) {
-        if (ImGui::MenuItem("New from clip...", "Ctrl+N")) m_show_new = true;
-        if (ImGui::MenuItem("Open...", "Ctrl+O")) m_show_open = true;
-        if (ImGui::BeginMenu("Open recent")) {
+        const bool idle = !busy_with_files();
+        if (ImGui::MenuItem("New from clip...", "Ctrl+N", false, idle)) m_show_new = true;
+        if (ImGui::MenuItem("Open...", "Ctrl+O", false, idle)) m_show_open = true;
+        if (ImGui::BeginMenu("Open recent", idle)) {
             auto list = recent_projects();
             if (list.empty()) ImGui::MenuItem("(none)", nullptr, false, false);
             for (const auto& r : list)
@@ -194,7 +211,7 @@ void Studio::draw_menu() {
             ImGui::EndMenu();
         }
         if (ImGui::MenuItem("Save", "Ctrl+S", false, m_doc.is_open())) guarded([&] { save(); });
-        if (ImGui::MenuItem("Save as...", "Ctrl+Shift+S", false, m_doc.is_open())) m_show_save_as = true;
+        if (ImGui::MenuItem("Save as...", "Ctrl+Shift+S", false, m_doc.is_open() && idle)) m_show_save_as = true;
         ImGui::Separator();
         if (ImGui::MenuItem("Quit", "Ctrl+Q")) request_close();
         ImGui::EndMenu();

@@ -66,6 +66,8 @@ public:
     bool view_current() const;  // the viewer shows the playhead frame with the newest state
     bool exporting() const { return m_exporting; }
     bool ingesting() const { return !m_ingest_dir.empty(); }
+    bool saving_as() const { return !m_save_as_dir.empty(); }
+    bool busy_with_files() const { return ingesting() || saving_as(); }
     const std::string& last_error() const { return m_error; }
     const std::string& export_result() const { return m_export_result; }
 
@@ -149,6 +151,7 @@ private:
     };
     std::shared_ptr<SliceJob> m_slice_job;
     std::string m_slice_key, m_slice_label = "input";
+    Image m_slice_image;  // what the slice texture shows (linear RGB; x → column, y → frame)
     // image rectangle last drawn (screen px) for clicks and screenshots
     float m_img_x = 0, m_img_y = 0, m_img_w = 0, m_img_h = 0;
 
@@ -168,6 +171,7 @@ private:
     bool m_exporting = false;
     std::string m_export_result;
     std::string m_ingest_dir;  // the project a running ingest creates
+    std::string m_save_as_dir; // the folder a running Save As copies the project to
 
     // modals / prompts
     std::string m_error, m_info;

@@ -341,10 +341,21 @@ void Studio::start_export(const nlohmann::json& req) {
 }
 
 void Studio::poll_results() {
-    if (!m_exporting && m_ingest_dir.empty()) return;
+    if (!m_exporting && !busy_with_files()) return;
     auto r = m_worker->take_result();
     if (!r) return;
-    if (r->rfind("ingested:", 0) == 0) {
+    if (r->rfind("copied:", 0) == 0) {
+        m_save_as_dir.clear();
+        guarded([&] {
+            m_doc.finish_save_as(r->substr(7));
+            after_open();
+            m_info = "saved as " + m_doc.project().dir.string();
+        });
+    } else if (r->rfind("save as failed:", 0) == 0) {
+        m_save_as_dir.clear();
+        after_open();  // the worker was stopped for the copy: reopen the project as it was
+        set_error(r->substr(15));
+    } else if (r->rfind("ingested:", 0) == 0) {
         m_ingest_dir.clear();
         guarded([&] {
             m_doc.open(r->substr(9));

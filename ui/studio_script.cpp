@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "io/image_file.h"
 #include "studio_app.h"
 #include "util/error.h"
 
@@ -147,12 +148,19 @@ bool StudioScript::run_step(Studio& st, const json& step) {
         return m_settle > 2;  // drawn
     }
     if (step.contains("time_slice")) {
+        if (step["time_slice"].is_boolean() && !step["time_slice"].get<bool>()) {
+            st.m_time_slice = false;
+            return true;
+        }
         if (first) {
             st.m_time_slice = true;
             st.m_slice_row = step["time_slice"].value("row", -1);
             st.m_slice_dirty = true;
         }
-        return m_settle > 3 && !st.m_slice_job && !st.m_slice_key.empty();
+        if (!(m_settle > 3 && !st.m_slice_job && !st.m_slice_key.empty())) return false;
+        if (step["time_slice"].contains("save"))
+            write_image_file(step["time_slice"]["save"].get<std::string>(), st.m_slice_image, PixelFormat::Png8);
+        return true;
     }
     if (step.contains("split")) {
         if (first) {
@@ -209,7 +217,7 @@ bool StudioScript::run_step(Studio& st, const json& step) {
     }
     if (step.contains("save_as")) {
         if (first) st.save_as(step["save_as"]);
-        return worker_idle();
+        return !st.saving_as() && worker_idle();
     }
     if (step.contains("reopen")) {
         if (first) {

@@ -12,7 +12,8 @@
 //              "hardness": h, "opacity": o}}        (atlas px, linear colour)
 //   {"export": {"what": [...], "format": f, "out": dir, "first": a, "last": b}}
 //   {"atlas_view": true|false}  {"split": {"left": mode, "right": mode, "wipe": 0..1}}
-//   {"time_slice": {"row": y}}  (shows the slice of the current view, waits for it)
+//   {"time_slice": {"row": y, "save": "slice.png"}}  (shows the slice of the current view, waits
+//   for it; "save" writes it, x → column, y → frame)   {"time_slice": false}  (hides it)
 //   {"save": true}  {"save_as": dir}  {"reopen": true}  {"screenshot": path}
 //   {"expect": {"keys": {"focus": n, ...}, "edits": true|false, "fitted": true}}
 //   {"stats": path}  (UI frame times as JSON)   {"quit": true}

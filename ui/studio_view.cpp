@@ -8,6 +8,8 @@
 #include <cmath>
 
 #include "studio_app.h"
+#include "fit/fit_engine.h"
+#include "fit/tensor_image.h"
 #include "synth/synth.h"
 #include "util/error.h"
 
@@ -220,8 +222,9 @@ void Studio::rebuild_time_slice() {
                          (m_mode == ViewMode::Refocused ||
                           (m_mode == ViewMode::Split && (m_split_a == ViewMode::Refocused ||
                                                          m_split_b == ViewMode::Refocused)));
+    const int64_t edit_version = m_doc.edits().bg.version() + m_doc.edits().fg.version();
     std::string key = std::to_string(m_slice_row) + (output ? (refocus ? "/refocus/" : "/sharp/") : "/input/") +
-                      std::to_string(m_atlas_version);
+                      std::to_string(m_atlas_version) + "/" + std::to_string(output ? edit_version : 0);
     if (refocus) key += m_doc.focus().to_json().dump();
     m_slice_dirty = false;
     if (key == m_slice_key) return;
@@ -234,6 +237,7 @@ void Studio::rebuild_time_slice() {
                 for (int c = 0; c < 3; ++c) s.at(x, t, c) = f.at(x, m_slice_row, std::min(c, f.channels - 1));
         }
         upload(m_slice_tex, s, m_slice_w, m_slice_h);
+        m_slice_image = std::move(s);
         m_slice_label = "input";
         return;
     }
@@ -243,11 +247,26 @@ void Studio::rebuild_time_slice() {
     const int row = m_slice_row;
     std::shared_ptr<const DepthModel> depth = refocus ? m_depth : nullptr;
     const FocusTrack focus = m_doc.focus();
-    m_worker->post("time slice", [job, row, depth, focus, w, n](FitEngine* engine, const Project&) {
+    // The artist's atlas edits, saved or not, as the viewer and the export show them.
+    const Image bg_edit = m_doc.edits().bg.has_edits() ? m_doc.edits().bg.result() : Image();
+    const Image fg_edit = m_doc.edits().fg.has_edits() ? m_doc.edits().fg.result() : Image();
+    m_worker->post("time slice", [job, row, depth, focus, w, n, bg_edit, fg_edit](FitEngine* engine, const Project&) {
         if (!engine) return;
+        torch::Tensor d_bg, d_fg;
+        {
+            std::lock_guard<std::mutex> lock(engine->model_mutex());
+            auto delta = [](const Image& edit, const torch::Tensor& base) {
+                if (edit.empty() || !base.defined()) return torch::Tensor();
+                auto e = image_to_tensor(edit).narrow(0, 0, 3);
+                if (e.sizes() != base.sizes()) return torch::Tensor();  // an atlas of another fit
+                return (e - base).unsqueeze(0);
+            };
+            d_bg = delta(bg_edit, engine->model().atlas_bg());
+            d_fg = delta(fg_edit, engine->model().atlas_fg());
+        }
         Image s(w, n, 3);
         for (int t = 0; t < n; ++t) {
-            const FrameMaps m = frame_maps(*engine, t);
+            const FrameMaps m = frame_maps(*engine, t, d_bg, d_fg);
             const Image f = depth ? render_refocused(m, *depth, t, focus.lens_at(t, depth.get()), 2) : m.sharp;
             for (int x = 0; x < w; ++x)
                 for (int c = 0; c < 3; ++c) s.at(x, t, c) = f.at(x, row, c);
@@ -264,6 +283,7 @@ void Studio::poll_time_slice() {
     if (!m_slice_job->done) return;
     if (m_slice_job->key == m_slice_key) {
         upload(m_slice_tex, m_slice_job->image, m_slice_w, m_slice_h);
+        m_slice_image = std::move(m_slice_job->image);
         m_slice_label = m_slice_key.find("/refocus/") != std::string::npos ? "refocused" : "sharp";
     }
     m_slice_job.reset();
@@ -296,8 +316,11 @@ void Studio::draw_viewer() {
     ImGui::Begin("Viewer", nullptr,
                  ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoMove |
                      ImGuiWindowFlags_NoBringToFrontOnFocus | ImGuiWindowFlags_NoSavedSettings);
-    if (!m_ingest_dir.empty()) {
-        ImGui::Text("Making the project %s: decoding the clip's frames ...", m_ingest_dir.c_str());
+    if (busy_with_files()) {
+        if (!m_save_as_dir.empty())
+            ImGui::Text("Saving the project as %s: copying its files ...", m_save_as_dir.c_str());
+        else
+            ImGui::Text("Making the project %s: decoding the clip's frames ...", m_ingest_dir.c_str());
         ImGui::ProgressBar(static_cast<float>(m_worker->status().job_progress), ImVec2(400, 0));
         ImGui::End();
         return;

@@ -1,6 +1,8 @@
 // The refocused frame; see recompose.h.
 #include "edit/recompose.h"
 
+#include "edit/atlas_edit.h"
+
 #include <torch/torch.h>
 
 #include "fit/fit_engine.h"
@@ -9,9 +11,12 @@
 
 namespace refocus {
 
-FrameMaps frame_maps(FitEngine& engine, int t) {
+FrameMaps frame_maps(FitEngine& engine, int t) { return frame_maps(engine, t, {}, {}); }
+
+FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta, const torch::Tensor& fg_delta) {
     torch::NoGradGuard no_grad;
     Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
+    apply_edits(L, bg_delta, fg_delta);
     engine.apply_fallback(L, t);
     return frame_maps(L);
 }

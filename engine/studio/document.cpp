@@ -58,18 +58,56 @@ void StudioDoc::save() {
 }
 
 void StudioDoc::save_as(const std::string& dir) {
+    const fs::path to = save_as_target(dir);
+    copy_project_files(m_project->dir, to);
+    finish_save_as(to);
+}
+
+fs::path StudioDoc::save_as_target(const std::string& dir) const {
     if (!m_project) throw Error("no project is open");
-    const fs::path to = fs::absolute(dir);
+    if (dir.empty()) throw Error("give a folder to save the project in");
+    const fs::path to = fs::absolute(dir).lexically_normal();
     std::error_code ec;
     if (fs::exists(to) && !fs::is_empty(to, ec))
         throw Error(file_error(to.string(), "exists and is not empty: choose a new folder"));
+    const fs::path from = fs::absolute(m_project->dir).lexically_normal();
+    const auto rel = to.lexically_relative(from);
+    if (to == from || (!rel.empty() && *rel.begin() != ".."))
+        throw Error(file_error(to.string(), "is inside the project being saved: choose a folder outside it"));
+    return to;
+}
+
+void StudioDoc::copy_project_files(const fs::path& from, const fs::path& to,
+                                   const std::function<bool(int, int)>& progress) {
+    std::error_code ec;
     fs::create_directories(to, ec);
-    for (const auto& entry : fs::directory_iterator(m_project->dir)) {
-        if (entry.path().filename() == ".autosave") continue;
-        fs::copy(entry.path(), to / entry.path().filename(),
-                 fs::copy_options::recursive | fs::copy_options::overwrite_existing, ec);
-        if (ec) throw Error(file_error((to / entry.path().filename()).string(), "cannot copy: " + ec.message()));
+    if (ec) throw Error(file_error(to.string(), "cannot create the folder: " + ec.message()));
+    // Every file first (for the progress), the autosave left behind: it belongs to the original.
+    std::vector<fs::path> files;
+    for (auto it = fs::recursive_directory_iterator(from, ec); !ec && it != fs::recursive_directory_iterator();
+         it.increment(ec)) {
+        const fs::path rel = it->path().lexically_relative(from);
+        if (*rel.begin() == ".autosave") {
+            if (it->is_directory()) it.disable_recursion_pending();
+            continue;
+        }
+        if (it->is_directory())
+            fs::create_directories(to / rel);
+        else
+            files.push_back(rel);
     }
+    if (ec) throw Error(file_error(from.string(), "cannot list the project: " + ec.message()));
+    const int n = static_cast<int>(files.size());
+    for (int i = 0; i < n; ++i) {
+        if (progress && !progress(i, n)) throw Error("save as cancelled; " + to.string() + " holds a partial copy");
+        fs::copy_file(from / files[i], to / files[i], fs::copy_options::overwrite_existing, ec);
+        if (ec) throw Error(file_error((to / files[i]).string(), "cannot copy: " + ec.message()));
+    }
+    if (progress) progress(n, n);
+}
+
+void StudioDoc::finish_save_as(const fs::path& to) {
+    if (!m_project) throw Error("no project is open");
     // The source clip path is stored relative to the project: keep it pointing at the clip.
     Project moved = *m_project;
     if (!moved.source.empty() && fs::path(moved.source).is_relative())

@@ -4,6 +4,7 @@
 // Saved work lives in the project folder (project.json "focus" section, edits/); autosave
 // writes to <project>/.autosave/ and never touches the saved files, so a crash or "Discard"
 // cannot lose what was saved, and a crash after a change can be recovered on the next open.
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -32,6 +33,14 @@ public:
     void save();
     // Copies the project folder to `dir` (must not exist or be empty), then saves there.
     void save_as(const std::string& dir);
+    // The same in three steps, so that the copy (the frame cache: gigabytes for a long clip)
+    // runs off the UI thread: check the target on the UI thread (returns its absolute path),
+    // copy anywhere (touches no document state; `progress(done, total)` returning false
+    // cancels), finish on the UI thread (points the document at the copy, saves the work there).
+    fs::path save_as_target(const std::string& dir) const;
+    static void copy_project_files(const fs::path& from, const fs::path& to,
+                                   const std::function<bool(int, int)>& progress = {});
+    void finish_save_as(const fs::path& to);
 
     bool dirty() const { return m_dirty; }
     void mark_dirty();
