@@ -122,6 +122,12 @@ TEST_CASE("scripted studio session: new, fit, paint, keyframes, export, save, re
     REQUIRE(j.contains("focus"));
     CHECK(j["focus"]["focus"].size() == 2);  // the two click-to-focus keys
     CHECK(fs::exists(dir / "smoke_proj/edits"));
+    // Save As (copied on the worker): the copy holds the frames and the work, and the session
+    // went on in it (the reopen step opened the copy and found the keys, edits and fit).
+    CHECK(fs::exists(dir / "smoke_copy/edits"));
+    CHECK(Project::load(dir / "smoke_copy").read_frame(29).width == p.width);
+    auto jc = nlohmann::json::parse(read_text_file((dir / "smoke_copy/project.json").string()));
+    CHECK(jc["focus"]["focus"].size() == 2);
 
     // Screenshot of the sharp view at frame 0: the viewer shows the painted stroke.
     auto meta = nlohmann::json::parse(read_text_file((dir / "shot_sharp.png.json").string()));
