@@ -289,8 +289,17 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
         auto f0 = e.fallback_weight(0);
         CHECK((!f0.defined() || f0.max().item<double>() < 0.05));
         Layers L2 = e.render_frame(2);
+        const torch::Tensor model_sharp = L2.sharp;
         e.apply_fallback(L2, 2);
         CHECK(patch(L2.sharp[0]).mean().item<double>() > 0.9);
+        // Paint drawn into the frame (an atlas edit) stays on top of the fallback, also where
+        // the frame falls back to the shot.
+        Layers L3 = e.render_frame(2);
+        auto paint = torch::zeros_like(L3.sharp);
+        paint.narrow(-2, 12, 4).narrow(-1, 18, 4).fill_(-0.5);  // inside the patch
+        L3.sharp = L3.sharp + paint;
+        e.apply_fallback(L3, 2, model_sharp);
+        CHECK((L3.sharp - L2.sharp - paint).abs().max().item<double>() < 1e-5);
         return diff;
     };
     const double off = leak(0.0), on = leak(1.5);

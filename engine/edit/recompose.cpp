@@ -16,8 +16,9 @@ FrameMaps frame_maps(FitEngine& engine, int t) { return frame_maps(engine, t, {}
 FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta, const torch::Tensor& fg_delta) {
     torch::NoGradGuard no_grad;
     Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
+    const torch::Tensor model_sharp = L.sharp;
     apply_edits(L, bg_delta, fg_delta);
-    engine.apply_fallback(L, t);
+    engine.apply_fallback(L, t, model_sharp);
     return frame_maps(L);
 }
 

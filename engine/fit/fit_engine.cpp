@@ -301,11 +301,15 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
     return f;
 }
 
-void FitEngine::apply_fallback(Layers& L, int t) const {
+void FitEngine::apply_fallback(Layers& L, int t, const torch::Tensor& model_sharp) const {
     auto f = fallback_weight(t);
     if (!f.defined() || !L.sharp.defined()) return;
     torch::NoGradGuard g;
-    L.sharp = (1.0 - f) * L.sharp + f * m_data->input[t].unsqueeze(0);
+    auto in = m_data->input[t].unsqueeze(0);
+    if (model_sharp.defined())
+        L.sharp = (1.0 - f) * model_sharp + f * in + (L.sharp - model_sharp);
+    else
+        L.sharp = (1.0 - f) * L.sharp + f * in;
 }
 
 // ---------------------------------------------------------------- checkpoints

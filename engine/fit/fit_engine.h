@@ -91,8 +91,10 @@ public:
     // shows the input frame instead of a wrong reconstruction. [1,1,H,W] in [0,1] (1: input), or
     // undefined when nothing falls back (perframe, a frame not trained yet, an old checkpoint).
     torch::Tensor fallback_weight(int t) const;
-    // L.sharp (frame t, batch of one) blended with the input by fallback_weight(t).
-    void apply_fallback(Layers& L, int t) const;
+    // L.sharp (frame t, batch of one) blended with the input by fallback_weight(t). When atlas
+    // edits were drawn into L, `model_sharp` is L.sharp before them: the fallback blends that,
+    // and the edits stay on top (paint on the atlas shows in every frame, fallback or not).
+    void apply_fallback(Layers& L, int t, const torch::Tensor& model_sharp = {}) const;
     FitModel& model() { return *m_model; }
     const FitData& data() const { return *m_data; }
     const FitOptions& options() const { return m_opts; }

@@ -167,10 +167,11 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
     torch::NoGradGuard no_grad;
     for (int t = first; t <= last; ++t) {
         Layers L = engine.render_frame(t);
+        const torch::Tensor model_sharp = L.sharp;
         apply_edits(L, d_bg, d_fg);
-        // The sharp plate and what is made from it fall back to the shot where the fit failed;
-        // the reblur and the layers stay the model's.
-        if (pass == ExportPass::Sharp || needs_project) engine.apply_fallback(L, t);
+        // The sharp plate and what is made from it fall back to the shot where the fit failed
+        // (the edits stay on top); the reblur and the layers stay the model's.
+        if (pass == ExportPass::Sharp || needs_project) engine.apply_fallback(L, t, model_sharp);
         Image frame;
         if (needs_project) {
             const FrameMaps m = frame_maps(L);
