@@ -194,6 +194,9 @@ const Bench kBenches[] = {
      "fit --clip <synth-dir> [--preset fast|paper|perframe] [--minutes M] [--oracle-coc] [--oracle-mask]\n"
      "             [--at 0.5,1,2,5,10] [--csv out.csv]\n"
      "             run time against error: sharp PSNR/SSIM/tPSNR vs ground truth, reblur PSNR"},
+    {"motion", bench_motion,
+     "motion --clip <synth-dir> [--pairs]\n"
+     "             camera motion (prepare's homographies) against the clip's true wall motion"},
     {"kernel", bench_kernel,
      "kernel --clip <synth-dir> [--frames 0,10,20] [--scales 1]\n"
      "             how well each blur kernel reblurs the clip's ground truth into its input"},

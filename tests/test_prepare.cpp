@@ -209,6 +209,51 @@ TEST_CASE("camera motion: homographies of a synthetic pan and zoom") {
     CHECK(std::hypot(ex - p[0] / p[2], ey - p[1] / p[2]) < 1.0);
 }
 
+TEST_CASE("camera motion: a wide lens panning keeps its perspective (homography, not affine)") {
+    // The camera turns about its vertical axis behind a 70-degree lens: frame t = plane(A_t p),
+    // A_t = K R_y(θ_t) K⁻¹. Consecutive frames differ by a true homography whose perspective
+    // terms an affine fit cannot hold; the chain must keep them.
+    const int w = 160, h = 90, n = 6;
+    const double f = 110, cx = w / 2.0, cy = h / 2.0;
+    const cv::Matx33d K(f, 0, cx, 0, f, cy, 0, 0, 1);
+    cv::Mat plane = mondrian(420, 260, 7) * 0.6 + texture(420, 260, 8) * 0.4;
+    std::vector<Image> frames;
+    std::vector<cv::Matx33d> A;
+    for (int t = 0; t < n; ++t) {
+        const double th = 0.035 * t;
+        const cv::Matx33d R(std::cos(th), 0, std::sin(th), 0, 1, 0, -std::sin(th), 0, std::cos(th));
+        A.push_back(translate(130, 85) * K * R * K.inv());
+        frames.push_back(from_mat(warp(plane, A.back(), w, h)));
+    }
+    PrepareLog log;
+    const ClipFlow flow = compute_clip_flow(frames);
+    const CameraMotion cm = estimate_camera_motion(frames, &flow, MotionOptions{}, log);
+    double worst = 0, worst_affine = 0;
+    const double px[4] = {0, w - 1.0, 0, w - 1.0}, py[4] = {0, 0, h - 1.0, h - 1.0};
+    for (int t = 1; t < n; ++t) {
+        const cv::Matx33d truth = A[0].inv() * A[t];
+        // What the best affine map would leave at the corners (the test's own yardstick).
+        std::vector<cv::Point2f> a, b;
+        for (int i = 0; i < 4; ++i) {
+            const cv::Vec3d p = truth * cv::Vec3d(px[i], py[i], 1);
+            a.emplace_back(px[i], py[i]);
+            b.emplace_back(p[0] / p[2], p[1] / p[2]);
+        }
+        const cv::Mat af = cv::getAffineTransform(a.data(), b.data());
+        const cv::Vec2d q = cv::Matx23d(af) * cv::Vec3d(px[3], py[3], 1);
+        worst_affine = std::max(worst_affine, std::hypot(q[0] - b[3].x, q[1] - b[3].y));
+        for (int i = 0; i < 4; ++i) {
+            double ex, ey;
+            cm.to_reference[t].apply(px[i], py[i], ex, ey);
+            worst = std::max(worst, std::hypot(ex - b[i].x, ey - b[i].y));
+        }
+    }
+    MESSAGE("perspective pan: worst corner error " << worst << " px (an affine chain misses a corner by "
+                                                   << worst_affine << " px)");
+    CHECK(worst_affine > 3.0);
+    CHECK(worst < 1.0);
+}
+
 TEST_CASE("camera motion: a featureless clip falls back to identity and says so") {
     std::vector<Image> flat(3, Image(64, 36, 3, 0.4f));
     PrepareLog log;
