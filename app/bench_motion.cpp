@@ -14,7 +14,9 @@
 #include "args.h"
 #include "commands.h"
 #include "io/clip.h"
+#include "io/image_file.h"
 #include "prepare/flow.h"
+#include "prepare/masks.h"
 #include "prepare/motion.h"
 #include "util/error.h"
 #include "util/fs.h"
@@ -91,6 +93,26 @@ int bench_motion(int argc, char** argv) {
             std::printf("frame %3d: source %-8s inliers %4d  pair error %.2f px  chained error %.2f px\n", t,
                         cm.pair_source[t - 1].c_str(), cm.pair_inliers[t - 1], pe, chain);
     }
+    // Automatic masks (prepare/masks.h) against the clip's true alpha: intersection over union.
+    const auto residuals = flow_residuals(flow, cm, frames[0].width, frames[0].height);
+    const auto masks = auto_masks(residuals);
+    double iou_sum = 0, cover = 0;
+    for (int t = 0; t < n; ++t) {
+        const Image alpha = read_image_file((clip / format_pattern("alpha_%04d.png", t)).string(), false).image;
+        double inter = 0, uni = 0;
+        for (int y = 0; y < alpha.height; ++y)
+            for (int x = 0; x < alpha.width; ++x) {
+                const bool g = alpha.at(x, y, 0) >= 0.5f, m = masks[t].at(x, y, 0) >= 0.5f;
+                inter += g && m;
+                uni += g || m;
+                cover += m;
+            }
+        const double iou = uni > 0 ? inter / uni : 1.0;
+        iou_sum += iou;
+        if (a.has("pairs")) std::printf("frame %3d: automatic mask IoU %.2f\n", t, iou);
+    }
+    std::printf("%s: automatic masks: mean IoU against the true alpha %.2f, cover %.1f%% of the frame\n",
+                clip.filename().string().c_str(), iou_sum / n, 100.0 * cover / (double(n) * W * H));
     std::printf("%s: %d frames, flow %.1f s, homographies %.2f s; pair error mean %.2f max "
                 "%.2f px; chained error to frame 0 max %.2f px; corners move up to %.2f px (%s)\n",
                 clip.filename().string().c_str(), n, std::chrono::duration<double>(t1 - t0).count(),

@@ -596,7 +596,8 @@ TEST_CASE("camera motion: the wall's motion, not a sharp subject's, when the wal
         cm.to_reference[t].apply(cx, cy, ex, ey);
         worst = std::max(worst, std::hypot(ex - x0, ey - y0));
     }
-    // Whole-frame consensus: 8.0 px; the outer ring's: 1.6 px at 1 px, 1.8 px at 0.5 px.
+    // Whole-frame homography consensus: 8.0 px; the outer ring's: 1.6 px; affine, weak pairs
+    // interpolated: 0.8 px.
     MESSAGE("hunt homographies: worst centre error " << worst << " px over " << so.frames << " frames");
-    CHECK(worst < 2.5);
+    CHECK(worst < 1.5);
 }

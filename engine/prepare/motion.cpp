@@ -237,6 +237,47 @@ int pair_from_flow(const Image& bwd, const Image& bwd_valid, const MotionOptions
     return n;
 }
 
+// Pairs that are a translation because few tracks agreed (see pair_from_features) take the
+// translation of the nearest well-tracked pairs, interpolated in time: a camera's motion is
+// smooth over a few frames, and a weak pair's tracks are biased by the change of blur.
+void smooth_weak_pairs(CameraMotion& cm, const MotionOptions& o, int w, int h) {
+    const int m = int(cm.pair.size());
+    auto weak = [&](int i) { return cm.pair_source[i] == "features" && cm.pair_inliers[i] < o.min_affine_tracks; };
+    auto centre_shift = [&](int i, double& dx, double& dy) {
+        double x, y;
+        cm.pair[i].apply(0.5 * (w - 1), 0.5 * (h - 1), x, y);
+        dx = x - 0.5 * (w - 1);
+        dy = y - 0.5 * (h - 1);
+    };
+    const int reach = o.weak_pair_reach;
+    std::vector<Homography> out = cm.pair;
+    for (int i = 0; i < m; ++i) {
+        if (!weak(i)) continue;
+        int a = -1, b = -1;
+        for (int k = i - 1; k >= std::max(0, i - reach); --k)
+            if (!weak(k) && cm.pair_source[k] == "features") { a = k; break; }
+        for (int k = i + 1; k <= std::min(m - 1, i + reach); ++k)
+            if (!weak(k) && cm.pair_source[k] == "features") { b = k; break; }
+        if (a < 0 && b < 0) continue;
+        double ax = 0, ay = 0, bx = 0, by = 0, tx, ty;
+        if (a >= 0) centre_shift(a, ax, ay);
+        if (b >= 0) centre_shift(b, bx, by);
+        if (a >= 0 && b >= 0) {
+            const double f = double(i - a) / (b - a);
+            tx = ax + f * (bx - ax);
+            ty = ay + f * (by - ay);
+        } else {
+            tx = a >= 0 ? ax : bx;
+            ty = a >= 0 ? ay : by;
+        }
+        Homography T;
+        T.m[2] = tx;
+        T.m[5] = ty;
+        out[i] = T;
+    }
+    cm.pair = out;
+}
+
 }  // namespace
 
 CameraMotion estimate_camera_motion(const std::vector<Image>& frames, const ClipFlow* flow,
@@ -277,8 +318,9 @@ CameraMotion estimate_camera_motion(const std::vector<Image>& frames, const Clip
         cm.pair.push_back(pair);
         cm.pair_source.push_back(source);
         cm.pair_inliers.push_back(inliers);
-        to0[t + 1] = to0[t] * pair;  // (t+1 → t) then (t → 0)
     }
+    smooth_weak_pairs(cm, opts, w, h);
+    for (int t = 0; t + 1 < n; ++t) to0[t + 1] = to0[t] * cm.pair[t];  // (t+1 → t) then (t → 0)
     const Homography ref_inv = to0[opts.reference].inverse();
     for (int t = 0; t < n; ++t) {
         cm.to_reference.push_back(ref_inv * to0[t]);

@@ -36,7 +36,8 @@ struct MotionOptions {
     double track_fb_max_px = 0.5;  // LK forward-backward disagreement allowed
     double ransac_px = 1.0;        // RANSAC reprojection threshold
     double ring_ransac_px = 0.5;   // the same for the consensus of the frame's outer ring
-    int min_affine_tracks = 100;   // fewer agreeing tracks: the pair is a translation
+    int min_affine_tracks = 100;   // fewer agreeing tracks: the pair is a translation, ...
+    int weak_pair_reach = 3;       // ... interpolated from well-tracked pairs this many frames away
     int min_inliers = 12;          // fewer → fall back to the flow, then to identity
     double static_max_px = 0.5;    // camera is static if no corner moves more than this
 };
