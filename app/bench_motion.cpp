@@ -4,12 +4,11 @@
 //   x0 = x − (pan_t − pan_0)·d − (shake_x,t − shake_x,0),   y0 = y − shake_y,t + shake_y,0,
 //   d = top + (bottom − top)·(y − shake_y,t + 0.5)/H          (engine/synth/synth.cpp)
 // Prints each pair's error and the chained error against frame 0, at a 5x5 grid of points.
-#include <nlohmann/json.hpp>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <nlohmann/json.hpp>
 
 #include "args.h"
 #include "commands.h"
@@ -25,8 +24,9 @@ namespace refocus {
 
 int bench_motion(int argc, char** argv) {
     Args a(argc, argv, 3, {"pairs"});
-    a.check_known({"clip", "pairs"});
-    if (!a.has("clip")) throw Error("usage: refocus bench motion --clip <synth-dir> [--pairs]");
+    a.check_known({"clip", "pairs", "dump"});
+    if (!a.has("clip"))
+        throw Error("usage: refocus bench motion --clip <synth-dir> [--pairs] [--dump <dir>]");
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
@@ -35,7 +35,8 @@ int bench_motion(int argc, char** argv) {
     const int n = static_cast<int>(frames.size());
     if (n < 2) throw Error(file_error(clip.string(), "needs at least 2 frames"));
     const double W = frames[0].width, H = frames[0].height;
-    const double top = j.at("background").at("invdepth_top"), bot = j.at("background").at("invdepth_bottom");
+    const double top = j.at("background").at("invdepth_top"),
+                 bot = j.at("background").at("invdepth_bottom");
     const auto& pan = j.at("camera").at("pan");
     const auto& shake = j.at("camera").at("shake_px");
     // True map frame t → frame 0 of a wall point.
@@ -90,15 +91,32 @@ int bench_motion(int argc, char** argv) {
         pair_max = std::max(pair_max, pe);
         chain_max = std::max(chain_max, chain);
         if (a.has("pairs"))
-            std::printf("frame %3d: source %-8s inliers %4d  pair error %.2f px  chained error %.2f px\n", t,
-                        cm.pair_source[t - 1].c_str(), cm.pair_inliers[t - 1], pe, chain);
+            std::printf(
+                "frame %3d: source %-8s inliers %4d  pair error %.2f px  chained error %.2f px\n",
+                t, cm.pair_source[t - 1].c_str(), cm.pair_inliers[t - 1], pe, chain);
     }
     // Automatic masks (prepare/masks.h) against the clip's true alpha: intersection over union.
-    const auto residuals = flow_residuals(flow, cm, frames[0].width, frames[0].height);
-    const auto masks = auto_masks(residuals);
+    const auto m0 = std::chrono::steady_clock::now();
+    std::vector<Image> residuals;
+    const auto masks = automatic_masks(frames, &flow, cm, MaskOptions{}, &residuals);
+    const double mask_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - m0).count();
+    if (a.has("dump")) {  // residuals and masks as PNG, to look at
+        const fs::path dir = a.get("dump");
+        fs::create_directories(dir);
+        for (int t = 0; t < n; ++t) {
+            Image view = residuals[t];  // 0..4 px → black..white
+            for (float& v : view.pixels) v = std::clamp(v / 4.0f, 0.0f, 1.0f);
+            write_image_file((dir / format_pattern("residual_%04d.png", t)).string(), view,
+                             PixelFormat::Png8, false);
+            write_image_file((dir / format_pattern("mask_%04d.png", t)).string(), masks[t],
+                             PixelFormat::Png8, false);
+        }
+    }
     double iou_sum = 0, cover = 0;
     for (int t = 0; t < n; ++t) {
-        const Image alpha = read_image_file((clip / format_pattern("alpha_%04d.png", t)).string(), false).image;
+        const Image alpha =
+            read_image_file((clip / format_pattern("alpha_%04d.png", t)).string(), false).image;
         double inter = 0, uni = 0;
         for (int y = 0; y < alpha.height; ++y)
             for (int x = 0; x < alpha.width; ++x) {
@@ -111,13 +129,16 @@ int bench_motion(int argc, char** argv) {
         iou_sum += iou;
         if (a.has("pairs")) std::printf("frame %3d: automatic mask IoU %.2f\n", t, iou);
     }
-    std::printf("%s: automatic masks: mean IoU against the true alpha %.2f, cover %.1f%% of the frame\n",
-                clip.filename().string().c_str(), iou_sum / n, 100.0 * cover / (double(n) * W * H));
-    std::printf("%s: %d frames, flow %.1f s, homographies %.2f s; pair error mean %.2f max "
-                "%.2f px; chained error to frame 0 max %.2f px; corners move up to %.2f px (%s)\n",
-                clip.filename().string().c_str(), n, std::chrono::duration<double>(t1 - t0).count(),
-                std::chrono::duration<double>(t2 - t1).count(), pair_sum / (n - 1), pair_max, chain_max,
-                cm.max_displacement_px, cm.is_static ? "static" : "moving");
+    std::printf(
+        "%s: automatic masks (%.1f s): mean IoU against the true alpha %.2f, cover %.1f%% of the "
+        "frame\n",
+        clip.filename().string().c_str(), mask_s, iou_sum / n, 100.0 * cover / (double(n) * W * H));
+    std::printf(
+        "%s: %d frames, flow %.1f s, homographies %.2f s; pair error mean %.2f max "
+        "%.2f px; chained error to frame 0 max %.2f px; corners move up to %.2f px (%s)\n",
+        clip.filename().string().c_str(), n, std::chrono::duration<double>(t1 - t0).count(),
+        std::chrono::duration<double>(t2 - t1).count(), pair_sum / (n - 1), pair_max, chain_max,
+        cm.max_displacement_px, cm.is_static ? "static" : "moving");
     return 0;
 }
 

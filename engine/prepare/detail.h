@@ -2,8 +2,10 @@
 // Internal helpers shared by the preparation stage's files (not part of the public API):
 // views of refocus::Image as cv::Mat and the grey conversions the classical estimators use.
 #include <opencv2/core.hpp>
+#include <opencv2/video/tracking.hpp>
 
 #include "io/image.h"
+#include "prepare/flow.h"
 
 namespace refocus::prep_detail {
 
@@ -23,6 +25,9 @@ cv::Mat linear_grey(const Image& img);
 // sRGB-encoded 8-bit grey, CV_8UC1: what feature trackers and DIS expect (perceptual contrast,
 // roughly uniform noise).
 cv::Mat srgb_grey8(const Image& img);
+
+// The DIS flow of a preset (FlowPreset::Fine is tuned in flow.cpp).
+cv::Ptr<cv::DISOpticalFlow> make_dis(FlowPreset p);
 
 // Bilinear sample of a CV_32FC1 / CV_32FC2 Mat at (x, y) with edge clamping.
 float sample1(const cv::Mat& m, float x, float y);

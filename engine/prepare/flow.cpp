@@ -73,9 +73,7 @@ cv::Vec2f sample2(const cv::Mat& m, float x, float y) {
 
 using namespace prep_detail;
 
-namespace {
-
-cv::Ptr<cv::DISOpticalFlow> make_dis(FlowPreset p) {
+cv::Ptr<cv::DISOpticalFlow> prep_detail::make_dis(FlowPreset p) {
     const int preset =
         p == FlowPreset::Fast ? cv::DISOpticalFlow::PRESET_FAST : cv::DISOpticalFlow::PRESET_MEDIUM;
     auto dis = cv::DISOpticalFlow::create(preset);
@@ -94,6 +92,8 @@ cv::Ptr<cv::DISOpticalFlow> make_dis(FlowPreset p) {
     dis->setUseSpatialPropagation(true);
     return dis;
 }
+
+namespace {
 
 Image flow_with(cv::DISOpticalFlow& dis, const cv::Mat& a, const cv::Mat& b) {
     cv::Mat flow;

@@ -89,7 +89,7 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
     } else {
         res.mask_source = "auto";
         if (n > 1) {
-            res.masks = auto_masks(flow_residuals(res.flow, res.motion, w, h), opts.mask);
+            res.masks = automatic_masks(frames, &res.flow, res.motion, opts.mask);
         } else {
             res.masks.assign(n, Image(w, h, 1, 0.0f));
             log.info("masks: a single frame has no motion to find a subject from");
