@@ -14,6 +14,7 @@
 
 using refocus::BlurKernel;
 using refocus::LensBlurParams;
+using refocus::kernel_radius_for_coc;
 using refocus::lens_blur;
 
 namespace {
@@ -374,4 +375,30 @@ TEST_CASE("NaN/Inf and negative radii are reported, not spread") {
     // Shapes.
     CHECK_THROWS_AS(lens_blur(img, torch::zeros({10, 11})), refocus::Error);
     CHECK_THROWS_AS(lens_blur(img[0], r), refocus::Error);
+}
+
+TEST_CASE("a circle of confusion becomes the kernel radius that spreads light as far") {
+    // The operator's own point spread function at kernel_radius_for_coc(c) has the second
+    // moment of a uniform disk of radius c (c²/2), for the paper's disk and for the Gaussian.
+    for (BlurKernel kernel : {BlurKernel::Disk, BlurKernel::Gaussian}) {
+        LensBlurParams p;
+        p.kernel = kernel;
+        double last = 0;
+        for (double c : {1.0, 3.0, 7.0, 12.0}) {
+            const double r = kernel_radius_for_coc(c, p);
+            CHECK(r > last);  // monotone
+            last = r;
+            const int n = 2 * int(c + 8 + 4 * p.kappa * c * (kernel == BlurKernel::Gaussian)) + 1, mid = n / 2;
+            auto img = torch::zeros({1, n, n}, torch::kFloat64);
+            img[0][mid][mid] = 1.0;
+            auto psf = lens_blur(img, torch::full({n, n}, r, torch::kFloat64), p)[0];
+            auto ys = torch::arange(n, torch::kFloat64) - mid;
+            auto rho2 = ys.view({n, 1}).pow(2) + ys.view({1, n}).pow(2);
+            const double m2 = (psf * rho2).sum().item<double>() / psf.sum().item<double>();
+            CHECK(m2 == doctest::Approx(0.5 * c * c).epsilon(0.02));
+        }
+    }
+    CHECK(kernel_radius_for_coc(0.0) == 0.0);
+    // The disk's soft edge makes it wider than the disk of its radius.
+    CHECK(kernel_radius_for_coc(7.0) == doctest::Approx(6.36).epsilon(0.01));
 }

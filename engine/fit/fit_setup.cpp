@@ -5,18 +5,45 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <functional>
+#include <memory>
 
 #include <nlohmann/json.hpp>
 
 #include "fit/stack_coc.h"
 #include "fit/tensor_image.h"
 #include "io/image_file.h"
+#include "ops/lens_blur.h"
 #include "prepare/prepare.h"
 #include "util/error.h"
 
 namespace refocus {
 
 namespace {
+
+std::string fmt2(double v) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%.2f", v);
+    return b;
+}
+
+// kernel_radius_for_coc over the maps' range, tabulated every 0.05 px and read linearly.
+std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps,
+                                                  const LensBlurParams& p) {
+    float mx = 0;
+    for (const Image& m : maps)
+        for (float v : m.pixels) mx = std::max(mx, v);
+    constexpr double step = 0.05;
+    auto table = std::make_shared<std::vector<double>>();
+    for (int i = 0; i * step <= mx + 2 * step; ++i)
+        table->push_back(kernel_radius_for_coc(i * step, p));
+    return [table](double c) {
+        const double u = std::max(0.0, c / step);
+        const size_t i = std::min(size_t(u), table->size() - 2);
+        const double f = std::min(1.0, u - double(i));
+        return (*table)[i] * (1 - f) + (*table)[i + 1] * f;
+    };
+}
 
 // The focal-stack radius (~20 s at 320x180x30) is cached in prep/ beside what it was computed
 // from: prep/stack_coc_%04d.exr and prep/stack_coc.json (written last) holding a key of its
@@ -95,7 +122,18 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     std::vector<Image> radius;
     if (!opts.coc_path.empty()) {
         radius = load_coc_maps(opts.coc_path, project.frames, project.width, project.height);
-        log.info("radius: given per frame by " + opts.coc_path);
+        // The maps hold circles of confusion (a thin lens's uniform disk, as the synth clips'
+        // passes or a depth-derived map); the lens blur layer's disk (paper eq. 2) is softer
+        // than that disk, so each radius becomes the kernel radius that spreads light as far.
+        // Synth clips, 1-min fast with the true radius, as given -> converted: pan 19.27 -> 22.40
+        // dB, walkout 17.60 -> 19.08, rack 22.28 -> 22.84, hunt 21.85 -> 22.30, tripod 27.02
+        // -> 26.22.
+        const auto table = coc_to_kernel_table(radius, LensBlurParams{});  // the fit's kernel
+        for (Image& r : radius)
+            for (float& v : r.pixels) v = float(table(v));
+        log.info("radius: given per frame by " + opts.coc_path + " (circles of confusion; as the " +
+                 "kernel's radius, 3 px is " + fmt2(kernel_radius_for_coc(3.0)) + ", 7 px is " +
+                 fmt2(kernel_radius_for_coc(7.0)) + ")");
     } else {
         radius = prep.coc;
     }

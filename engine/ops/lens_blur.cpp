@@ -697,4 +697,41 @@ torch::Tensor lens_blur_adjoint(const torch::Tensor& grad_out, const torch::Tens
     return run_backward(grad_out, torch::Tensor(), rad, params, true, false).first;
 }
 
+double lens_blur_second_moment(double r, const LensBlurParams& p) {
+    check_lens_blur_params(p);
+    const double rs = lens_blur_support(r, p);
+    if (rs <= 0) return 0;
+    KernelEval ke(p);
+    ke.set_radius(r);
+    const int R = static_cast<int>(std::floor(rs));
+    double sum = 0, m2 = 0;
+    for (int y = -R; y <= R; ++y)
+        for (int x = -R; x <= R; ++x) {
+            const double rho2 = double(x) * x + double(y) * y;
+            if (rho2 >= rs * rs) continue;
+            double k, dk;
+            ke.eval(rho2, k, dk);
+            sum += k;
+            m2 += k * rho2;
+        }
+    double s, ds;  // the small-radius blend with the identity (header)
+    blend(r, p.min_radius, s, ds);
+    return sum > 0 ? s * m2 / sum : 0;
+}
+
+double kernel_radius_for_coc(double coc, const LensBlurParams& p) {
+    if (!(coc > 0)) return 0;
+    // A uniform disk of radius c spreads light with E[ρ²] = c²/2. The kernel's moment grows
+    // with r; bisect on [0, c + 2] (every kernel here is at least as wide as its radius's disk
+    // up to its 1-3 px soft edge).
+    const double target = 0.5 * coc * coc;
+    double lo = 0, hi = coc + 2;
+    if (lens_blur_second_moment(hi, p) < target) return hi;
+    for (int i = 0; i < 40; ++i) {
+        const double mid = 0.5 * (lo + hi);
+        (lens_blur_second_moment(mid, p) < target ? lo : hi) = mid;
+    }
+    return 0.5 * (lo + hi);
+}
+
 }  // namespace refocus

@@ -57,6 +57,15 @@ void check_lens_blur_params(const LensBlurParams& params);
 // R_s above, in px, for r > min_radius (0 for r ≤ min_radius: one tap).
 double lens_blur_support(double r, const LensBlurParams& params);
 
+// The kernel's second moment E[ρ²] (px²) over its taps at radius r, small-radius blend included.
+double lens_blur_second_moment(double r, const LensBlurParams& params = {});
+
+// The kernel radius whose kernel spreads light as far (same second moment) as a uniform disk
+// of radius `coc` px, a physical circle of confusion (a thin lens, the aperture renderer). The
+// paper's disk (eq. 2, β = 2) has a soft edge 1-3 px wide, so it is wider than the disk of its
+// radius: a 7 px circle of confusion is its r = 6.36, a 3 px one r = 2.36.
+double kernel_radius_for_coc(double coc, const LensBlurParams& params = {});
+
 // Number of (source pixel, tap) pairs the fast path visits for this radius map (one per pixel
 // at r ≤ min_radius). The benchmark divides it by time for taps/s.
 int64_t lens_blur_tap_count(const torch::Tensor& radius, const LensBlurParams& params = {});
