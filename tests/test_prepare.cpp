@@ -566,19 +566,34 @@ TEST_CASE("prep folder: save, load, and damaged files named") {
     CHECK(e.find("prepare.json") != std::string::npos);
 }
 
-TEST_CASE("camera motion: the wall's motion, not a sharp subject's, when the wall is blurred") {
-    // The synth hunt clip: focus hunts around a subject that walks ~0.7 px a frame across a
-    // wall that moves ~0.1 px a frame; when focus is on the subject its corners track cleanly
-    // and the wall's (blurred, the blur changing every frame) do not. The homographies must
-    // follow the wall: chained, their error at the frame centre is compared with the truth.
+namespace {
+// The synth hunt clip at 240x135x16: focus hunts around a subject that walks ~0.7 px a frame
+// across a wall that moves ~0.1 px a frame. Its frames and true alpha.
+SynthOptions hunt_options() {
     SynthOptions so;
     so.scene = "hunt";
     so.width = 240;
     so.height = 135;
     so.frames = 16;
+    return so;
+}
+void render_all(const SynthClip& clip, int n, std::vector<Image>& frames, std::vector<Image>* alpha = nullptr) {
+    for (int t = 0; t < n; ++t) {
+        SynthFrame f = clip.render(t);
+        frames.push_back(std::move(f.input));
+        if (alpha) alpha->push_back(std::move(f.alpha));
+    }
+}
+}  // namespace
+
+TEST_CASE("camera motion: the wall's motion, not a sharp subject's, when the wall is blurred") {
+    // When focus is on the hunt clip's subject its corners track cleanly and the wall's
+    // (blurred, the blur changing every frame) do not. The homographies must follow the wall:
+    // chained, their error at the frame centre is compared with the truth.
+    const SynthOptions so = hunt_options();
     SynthClip clip(so);
     std::vector<Image> frames;
-    for (int t = 0; t < so.frames; ++t) frames.push_back(clip.render(t).input);
+    render_all(clip, so.frames, frames);
     PrepareLog log;
     const ClipFlow flow = compute_clip_flow(frames);
     const CameraMotion cm = estimate_camera_motion(frames, &flow, MotionOptions{}, log);
@@ -606,18 +621,10 @@ TEST_CASE("masks: a slow subject under hunting focus is found (synth hunt)") {
     // The subject walks ~0.7 px a frame against the wall while focus swings the wall's blur by
     // several px from frame to frame. Adjacent frames' flow residual cannot tell the two apart
     // (its masks, at 320x180: mean IoU 0.14); the long baselines can (0.77).
-    SynthOptions so;
-    so.scene = "hunt";
-    so.width = 240;
-    so.height = 135;
-    so.frames = 16;
+    const SynthOptions so = hunt_options();
     SynthClip clip(so);
     std::vector<Image> frames, alpha;
-    for (int t = 0; t < so.frames; ++t) {
-        SynthFrame f = clip.render(t);
-        frames.push_back(std::move(f.input));
-        alpha.push_back(std::move(f.alpha));
-    }
+    render_all(clip, so.frames, frames, &alpha);
     PrepareLog log;
     const ClipFlow flow = compute_clip_flow(frames);
     const CameraMotion cm = estimate_camera_motion(frames, &flow, MotionOptions{}, log);
