@@ -29,7 +29,8 @@ const Command kCommands[] = {
     {"fit", refocus::cmd_fit,
      "fit <project> [--preset fast|paper|perframe] [--minutes M | --iters N] [--coc <pattern>]\n"
      "           [--mask <pattern>] [--seed S] [--resume]",
-     "fit sharp layered atlases to the project's clip (checkpoints; --resume continues)"},
+     "fit sharp layered atlases to the project's clip (checkpoints; --resume continues);\n"
+     "           --coc: per-frame EXR circle-of-confusion radii in px, instead of the estimate"},
     {"export", refocus::cmd_export,
      "export <project> --what sharp|reblur|atlas|alpha|coc|uv|all [--format png|exr|tiff|mp4]\n"
      "           --out <dir-or-file>",
