@@ -10,6 +10,7 @@
 
 #include "io/clip.h"
 #include "metrics/metrics.h"
+#include "fit/atlas_geometry.h"
 #include "fit/fit_engine.h"
 #include "fit/fit_setup.h"
 #include "project/project.h"
@@ -308,4 +309,76 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
     CHECK(fallback_out < 0.05);
     MESSAGE("square leaking into frame 0: robust off " << off << ", on " << on);
     CHECK(on < 0.6 * off);
+}
+
+TEST_CASE("subject track follows the subject's flow where its masks lose part of it") {
+    // A subject moving 1.5 px a frame to the right; frames 2-4 mask only its lower half (a
+    // blurred subject's automatic mask loses its head), so their centroids drop 6 px.
+    const int T = 7, H = 40, W = 64;
+    FitData d;
+    d.frames = T, d.height = H, d.width = W;
+    d.mask = torch::zeros({T, 1, H, W});
+    for (int t = 0; t < T; ++t) {
+        const int x0 = 10 + int(std::lround(1.5 * t));
+        const bool half = t >= 2 && t <= 4;
+        d.mask[t][0].narrow(0, half ? 20 : 8, half ? 12 : 24).narrow(1, x0, 16).fill_(1.0f);
+    }
+    d.flow_fwd = torch::zeros({T - 1, 2, H, W});
+    d.flow_fwd.select(1, 0).fill_(1.5f);  // the subject's motion (the wall's does not matter:
+    d.flow_valid = torch::ones({T - 1, 1, H, W});  // only the mask's core is read)
+    std::vector<double> vx, vy;
+    subject_track(d, vx, vy);
+    for (int t = 0; t < T; ++t) {
+        CHECK(vx[t] - vx[0] == doctest::Approx(1.5 * t).epsilon(1e-6));
+        CHECK(vy[t] - vy[0] == doctest::Approx(0.0).epsilon(1e-6));
+    }
+    // Anchored on the median centroid: the full masks' centre (y = 19.5), not the halves'.
+    CHECK(vy[0] == doctest::Approx(19.5).epsilon(1e-6));
+    // Without flow (or for an earlier build's checkpoint) the smoothed centroids, which follow
+    // the masks down.
+    d.legacy_subject_track = true;
+    subject_track(d, vx, vy);
+    CHECK(vy[3] > 22.0);
+}
+
+TEST_CASE("a checkpoint without the shared matte or the track's kind loads as the build that wrote it") {
+    auto data = std::make_shared<FitData>();
+    data->frames = 4, data->height = 24, data->width = 40;
+    torch::manual_seed(5);
+    data->input = torch::rand({4, 3, 24, 40});
+    data->radius = torch::full({4, 24, 40}, 1.0f);
+    data->to_ref = torch::eye(3, torch::kFloat64).expand({4, 3, 3}).clone();
+    data->mask = torch::zeros({4, 1, 24, 40});
+    data->mask.narrow(2, 8, 8).narrow(3, 12, 10).fill_(1.0f);
+    data->has_subject = true;
+    FitOptions o;
+    o.preset = "fast";
+    o.iters = 4;
+    FitEngine a(data, o);
+    for (int i = 0; i < 2; ++i) a.step();
+    const fs::path ck = scratch_dir("fit_old_checkpoint");
+    a.save_checkpoint(ck);
+    // As an earlier build wrote it: no "subject_track" field.
+    auto j = nlohmann::json::parse(read_text_file(ck / "checkpoint.json"));
+    CHECK(j.at("subject_track") == "flow");
+    j.erase("subject_track");
+    write_file_atomic(ck / "checkpoint.json", j.dump());
+    auto data_b = std::make_shared<FitData>(*data);
+    FitEngine b(data_b, o);
+    b.load_checkpoint(ck);
+    CHECK(b.data().legacy_subject_track);
+    // (Without flow both tracks are the masks' centroids, so the tensors fit either way.)
+    CHECK(torch::equal(a.render_frame(1).sharp, b.render_frame(1).sharp));
+    // An earlier build's state lacks the shared matte: its per-frame matte is all of alpha.
+    auto state = a.model().state();
+    auto logits = state.at("alpha_logit").clone();
+    state.erase("alpha_atlas");
+    b.model().load_state(state);
+    auto alpha = b.render_frame(2).alpha;
+    auto want = torch::sigmoid(torch::nn::functional::interpolate(
+        logits.narrow(0, 2, 1), torch::nn::functional::InterpolateFuncOptions()
+                                    .size(std::vector<int64_t>{24, 40})
+                                    .mode(torch::kBilinear)
+                                    .align_corners(false)));
+    CHECK(torch::allclose(alpha, want, 1e-5, 1e-5));
 }

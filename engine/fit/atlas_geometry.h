@@ -21,10 +21,12 @@ torch::Tensor translation(double tx, double ty);
 // 2 px margin, bounded to 3x the frame should a homography go wild.
 AtlasBox mapped_frames_box(const torch::Tensor& to_ref, int64_t H, int64_t W);
 
-// Per-frame subject centre from masks [T,1,H,W]: the mask centroid, frames without a subject
-// keep the last one seen, smoothed over ±2 frames (thresholded masks jitter as blur changes
-// their outline, and a jittering mapping flickers).
-void subject_track(const torch::Tensor& mask, std::vector<double>& cx, std::vector<double>& cy);
+// Per-frame subject position from masks [T,1,H,W] and the clip's flow ([T-1,2,H,W] t → t+1,
+// validity [T-1,1,H,W]; undefined: none): the median flow over each mask's core, chained, and
+// placed where the masks' centroids are on the median. Without flow: the mask centroid, frames
+// without a subject keeping the last one seen, smoothed over ±2 frames.
+struct FitData;
+void subject_track(const FitData& d, std::vector<double>& cx, std::vector<double>& cy);
 
 // Extent of the subject in coordinates stabilised on the track, plus `margin` px.
 AtlasBox subject_box(const torch::Tensor& mask, const std::vector<double>& cx,

@@ -70,7 +70,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         bg_weight = sharpness * (1.0 - d.mask).clamp_min(1e-3);
         // Foreground mapping: translate so that each frame's subject centroid lands on one point.
         std::vector<double> vx, vy;
-        subject_track(d.mask, vx, vy);
+        subject_track(d, vx, vy);
         const AtlasBox fbox = subject_box(d.mask, vx, vy, 12.0);
         m_fg.origin_x = fbox.origin_x;
         m_fg.origin_y = fbox.origin_y;
@@ -83,18 +83,38 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         m_fg.learn_warp = true;
         m_fg.warp = torch::zeros({T, 2, gh, gw});
         const auto fg_weight = sharpness * d.mask.clamp_min(1e-3);
-        refine_alignment(m_fg, fg_weight, d.mask, true);
+        // The subject's track may be off by a few px where the focus crosses it (its flow sees
+        // the wall through its blurred edge); the reblurred sharpest views pull it back. Synth
+        // rack, mean distance of the true subject centre from its mean in the atlas: refusing
+        // corrections over 4 px 2.7 px, over 10 px 1.0.
+        refine_alignment(m_fg, fg_weight, d.mask, true, d.legacy_subject_track ? 4.0 : 10.0);
         init_levels(m_fg, fuse(m_fg, fg_weight));
-        auto m4 = F::avg_pool2d(d.mask, F::AvgPool2dFuncOptions(4).ceil_mode(true));
-        m_alpha_logit = torch::logit(m4.clamp(0.05, 0.95));
+        // Alpha (paper eq. 1): a matte shared by the frames, in the foreground atlas (half its
+        // resolution), plus a per-frame residual (quarter resolution) for what moves on the
+        // subject. The shared matte starts as the masks fused toward the frames that saw the
+        // subject sharpest: a blurred subject's automatic mask loses its head and feet (synth
+        // rack frames 0-15), a sharp one's does not.
+        const double hs = 0.5;
+        auto to_half = torch::tensor({hs, 0.0, 0.5 * hs - 0.5, 0.0, hs, 0.5 * hs - 0.5, 0.0, 0.0, 1.0},
+                                     torch::kFloat64).view({3, 3});
+        m_alpha_h = std::max<int64_t>(1, (m_fg.height + 1) / 2);
+        m_alpha_w = std::max<int64_t>(1, (m_fg.width + 1) / 2);
+        auto fused_mask = fuse_frames(torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
+                                      m_alpha_h, m_alpha_w, d.mask, sharpness);
+        m_alpha_atlas = torch::logit(fused_mask.unsqueeze(0).clamp(0.01, 0.99));
+        m_alpha_logit = torch::zeros({T, 1, (H + 3) / 4, (W + 3) / 4});
+        // The masks are trusted as much as the subject is sharp there (1 at r = 0, 0.2 at 4 px),
+        // relative to the clip (a subject never in focus keeps its masks' full weight).
+        auto trust = 1.0 / (1.0 + (d.radius.unsqueeze(1) / 2.0).pow(2));
+        m_boot_weight = trust / trust.mean().clamp_min(1e-6);
     }
     if (!d.static_camera)
-        refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false);
+        refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false, 4.0);
     init_levels(m_bg, fuse(m_bg, bg_weight));
 }
 
 void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                                 bool affine) {
+                                 bool affine, double max_shift) {
     const int64_t T = m_data.frames, H = m_data.height, W = m_data.width;
     auto grey = [&](const torch::Tensor& rgb) {  // [3,H,W] linear → sRGB luma, CV_32F
         auto l = srgb_encode(rgb);
@@ -132,7 +152,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             for (int r = 0; r < warp.rows; ++r)
                 for (int c = 0; c < 3; ++c) w[r][c] = double(warp.at<float>(r, c));
             // ECC maps template (input frame) pixels to the render's: frame x ↦ render w·x,
-            // and the render pixel y sits at atlas m·y. Refuse corrections over 4 px.
+            // and the render pixel y sits at atlas m·y. Refuse corrections over max_shift px.
             double worst = 0;
             for (double cy : {0.0, double(H - 1)})
                 for (double cx : {0.0, double(W - 1)}) {
@@ -143,7 +163,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             if (std::getenv("REFOCUS_DEBUG_ALIGN"))
                 std::fprintf(stderr, "align round %d frame %lld: %s, corner shift %.2f px\n", round,
                              (long long)t, ok ? "ok" : "failed", worst);
-            mats.push_back(ok && worst < 4.0 ? torch::matmul(m, w) : m);
+            mats.push_back(ok && worst < max_shift ? torch::matmul(m, w) : m);
         }
         a.to_atlas = torch::stack(mats).to(torch::kFloat32);
     }
@@ -213,7 +233,10 @@ std::vector<ParamGroup> FastModel::param_groups() {
     if (m_bg.learn_warp) warp.params.push_back(m_bg.warp);
     if (m_two_layers) warp.params.push_back(m_fg.warp);
     if (!warp.params.empty()) g.push_back(warp);
-    if (m_two_layers) g.push_back(ParamGroup{{m_alpha_logit.set_requires_grad(true)}, m_opts.lr_alpha});
+    if (m_two_layers) {
+        g.push_back(ParamGroup{{m_alpha_logit.set_requires_grad(true)}, m_opts.lr_alpha});
+        g.push_back(ParamGroup{{m_alpha_atlas.set_requires_grad(true)}, m_opts.lr_alpha * m_opts.alpha_shared_lr});
+    }
     return g;
 }
 
@@ -229,7 +252,11 @@ Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad)
     out.uv_fg = to_grid(m_fg, map_coords(m_fg, frames, pad));
     out.fg = sample_bicubic(compose(m_fg).expand({B, 3, m_fg.height, m_fg.width}), out.uv_fg);
     auto idx = torch::tensor(frames, torch::kLong);
-    out.alpha = torch::sigmoid(pad_edges(upsample(m_alpha_logit.index_select(0, idx), H, W), pad));
+    // The shared matte through the foreground mapping (its grid [-1,1] spans the atlas, which
+    // the half-resolution matte spans too) plus the frame's residual.
+    auto shared = F::grid_sample(m_alpha_atlas.expand({B, 1, m_alpha_h, m_alpha_w}), out.uv_fg,
+                                 F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kBorder).align_corners(false));
+    out.alpha = torch::sigmoid(shared + pad_edges(upsample(m_alpha_logit.index_select(0, idx), H, W), pad));
     out.sharp = out.alpha * out.fg + (1.0 - out.alpha) * out.bg;  // paper eq. 1
     return out;
 }
@@ -263,8 +290,8 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
             if (a->warp.requires_grad())
                 temporal = temporal + (a->warp.index_select(0, idx) - a->warp.index_select(0, nidx)).pow(2).mean();
         if (m_two_layers)
-            temporal = temporal + (torch::sigmoid(m_alpha_logit.index_select(0, idx)) -
-                                   torch::sigmoid(m_alpha_logit.index_select(0, nidx))).abs().mean();
+            temporal = temporal + 0.25 * (m_alpha_logit.index_select(0, idx) -
+                                          m_alpha_logit.index_select(0, nidx)).abs().mean();
         total = total + m_opts.w_temporal * temporal;
         terms["temporal"] = temporal.item<double>();
     }
@@ -274,9 +301,13 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
         const double decay = std::pow(0.5, double(step) / m_opts.bootstrap_halflife);
         const int64_t pad = (layers.alpha.size(3) - m_data.width) / 2;
         auto alpha = layers.alpha.narrow(2, pad, m_data.height).narrow(3, pad, m_data.width);
-        auto boot = (alpha - m_data.mask.index_select(0, idx)).abs().mean();
+        auto boot = ((alpha - m_data.mask.index_select(0, idx)).abs() * m_boot_weight.index_select(0, idx)).mean();
         total = total + m_opts.w_bootstrap * decay * boot;
         terms["bootstrap"] = boot.item<double>();
+        // The residual stays small: what the frames share lives in the shared matte.
+        auto res = m_alpha_logit.index_select(0, idx).abs().mean();
+        total = total + m_opts.w_alpha_residual * res;
+        terms["alpha_residual"] = res.item<double>();
     }
     return total;
 }
@@ -301,6 +332,17 @@ void FastModel::set_atlas_fg(const torch::Tensor& rgb) {
     set_atlas(m_fg, rgb);
 }
 
+void FastModel::load_state(const std::map<std::string, torch::Tensor>& s) {
+    if (m_two_layers && !s.count("alpha_atlas")) {
+        // An earlier build's checkpoint: its per-frame matte was all of alpha.
+        auto with = s;
+        with["alpha_atlas"] = torch::zeros_like(m_alpha_atlas);
+        FitModel::load_state(with);
+        return;
+    }
+    FitModel::load_state(s);
+}
+
 std::map<std::string, torch::Tensor> FastModel::state() {
     std::map<std::string, torch::Tensor> s;
     for (size_t l = 0; l < m_bg.levels.size(); ++l) s["bg_level" + std::to_string(l)] = m_bg.levels[l];
@@ -309,6 +351,7 @@ std::map<std::string, torch::Tensor> FastModel::state() {
         for (size_t l = 0; l < m_fg.levels.size(); ++l) s["fg_level" + std::to_string(l)] = m_fg.levels[l];
         s["fg_warp"] = m_fg.warp;
         s["alpha_logit"] = m_alpha_logit;
+        s["alpha_atlas"] = m_alpha_atlas;
     }
     return s;
 }

@@ -4,7 +4,9 @@
 //     atlas, plus a coarse residual warp grid per frame (learned only when the camera moves).
 //   Foreground mapping M_f: per-frame translation that stabilises the subject (mask centroid)
 //     plus a coarse residual warp grid per frame.
-//   Alpha: per-frame matte at quarter resolution (logits), bootstrapped from the masks.
+//   Alpha: a matte shared by the frames in the foreground atlas (half resolution) plus a per-frame
+//     residual at quarter resolution (logits), bootstrapped from the masks where the subject is
+//     sharp.
 //   Atlases: multi-resolution textures A = Σ_l up(T_l) (coarse-to-fine for free: a coarse level
 //     moves many atlas pixels at once), with total variation.
 // Initialisation fuses the input frames into the atlases weighted toward the frames that saw
@@ -24,6 +26,8 @@ struct FastModelOptions {
     double w_temporal = 0.5;    // neighbouring frames' warps and mattes agree
     double w_bootstrap = 0.5;   // alpha to mask, halves every `bootstrap_halflife` steps
     int bootstrap_halflife = 400;
+    double w_alpha_residual = 0.02;  // L1 on the per-frame alpha residual (logit)
+    double alpha_shared_lr = 1.0;    // the shared matte's learning rate, times lr_alpha
     int align_rounds = 2;       // ECC refinement rounds at initialisation (0: off)
     int pad = 0;                // px of scene the atlases hold beyond each frame edge (the
                                 // engine passes the largest blur support; FitModel::max_pad)
@@ -44,6 +48,7 @@ public:
     void set_atlas_bg(const torch::Tensor& rgb) override;
     void set_atlas_fg(const torch::Tensor& rgb) override;
     std::map<std::string, torch::Tensor> state() override;
+    void load_state(const std::map<std::string, torch::Tensor>& s) override;
 
 private:
     struct Atlas {
@@ -66,7 +71,7 @@ private:
     // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp
     // atlas shifted by a pixel scores worse than the blurred input.
     void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                          bool affine);
+                          bool affine, double max_shift);
 
     const FitData& m_data;
     FastModelOptions m_opts;
@@ -74,7 +79,10 @@ private:
     torch::Tensor m_pixels_pad;  // the same over the frame padded by opts.pad
     Atlas m_bg, m_fg;
     bool m_two_layers = false;
-    torch::Tensor m_alpha_logit;  // [T,1,H/4,W/4]
+    torch::Tensor m_alpha_logit;  // [T,1,H/4,W/4] per-frame residual logit
+    torch::Tensor m_alpha_atlas;  // [1,1,h,w] shared matte logit, foreground atlas at half size
+    int64_t m_alpha_h = 0, m_alpha_w = 0;
+    torch::Tensor m_boot_weight;  // [T,1,H,W] how far each mask is trusted (sharp subject: most)
 };
 
 }  // namespace refocus

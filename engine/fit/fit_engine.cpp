@@ -36,6 +36,8 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         env("REFOCUS_FAST_W_TV", o.w_tv);
         env("REFOCUS_FAST_W_WARP", o.w_warp);
         env("REFOCUS_FAST_W_TEMPORAL", o.w_temporal);
+        env("REFOCUS_FAST_W_ALPHA_RESIDUAL", o.w_alpha_residual);
+        env("REFOCUS_FAST_ALPHA_SHARED_LR", o.alpha_shared_lr);
         double cell = o.warp_cell_px, rounds = o.align_rounds;
         env("REFOCUS_FAST_WARP_CELL", cell);
         env("REFOCUS_FAST_ALIGN_ROUNDS", rounds);
@@ -357,6 +359,7 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
                         {"height", m_data->height},
                         {"width", m_data->width},
                         {"two_layers", m_data->has_subject},
+                        {"subject_track", m_data->legacy_subject_track ? "centroid" : "flow"},
                         {"step", m_step},
                         {"elapsed_s", m_elapsed},
                         {"seed", m_opts.seed},
@@ -412,14 +415,24 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     }
     std::lock_guard<std::mutex> lock(m_model_mutex);
     if (m_model) {
+        // A checkpoint of an earlier build placed the subject's atlas on its masks' centroids:
+        // the model is rebuilt that way, so that its atlases and mappings mean what they meant.
+        const bool legacy = m_data->has_subject && j.value("subject_track", std::string("centroid")) == "centroid";
+        if (legacy != m_data->legacy_subject_track) {
+            m_data->legacy_subject_track = legacy;
+            m_model = make_model(m_opts.preset, *m_data, m_opts.seed);
+            make_optimizer();
+        }
         std::map<std::string, torch::Tensor> s;
         for (auto& [name, t] : m_model->state()) {
             torch::Tensor v;
-            if (!ar.try_read("model/" + name, v))
-                throw Error(file_error(pt.string(), "checkpoint lacks tensor '" + name + "'"));
-            s[name] = v;
+            if (ar.try_read("model/" + name, v)) s[name] = v;  // the model says what it cannot lack
         }
-        m_model->load_state(s);
+        try {
+            m_model->load_state(s);
+        } catch (const Error& e) {
+            throw Error(file_error(pt.string(), e.what()));
+        }
         torch::Tensor resid;  // older checkpoints lack it: the running residual starts again
         if (ar.try_read("robust_resid", resid) && resid.sizes().equals(m_resid.sizes())) m_resid.copy_(resid);
         torch::serialize::InputArchive opt;

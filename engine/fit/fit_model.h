@@ -25,6 +25,9 @@ struct FitData {
     torch::Tensor flow_valid; // [T-1,1,H,W] 1 where the flow is forward-backward consistent
     bool static_camera = true;
     bool has_subject = false;
+    // The subject's track as builds before the eighth session made it (mask centroids), for
+    // their checkpoints (FitEngine::load_checkpoint sets it); new fits chain the flow.
+    bool legacy_subject_track = false;
 };
 
 // One rendered batch of frames. All [B,...].

@@ -52,7 +52,7 @@ std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps
 std::string stack_key(const Project& project, const FitData& d) {
     const std::string prep = read_text_file(fs::path(prepare_dir(project)) / "prepare.json");
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
-           (d.static_camera ? "/static" : "/moving") + "/v4";
+           (d.static_camera ? "/static" : "/moving") + "/v5";
 }
 
 fs::path stack_frame_path(const Project& project, int t) {

@@ -143,7 +143,7 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
         // Foreground: translate each frame's (smoothed) mask centroid onto one point — the
         // fast preset's stabilised mapping, here the pre-training target of M_f.
         std::vector<double> sx, sy;
-        subject_track(d.mask, sx, sy);
+        subject_track(d, sx, sy);
         const AtlasBox fbox = subject_box(d.mask, sx, sy, 12.0);
         const double fox = fbox.origin_x, foy = fbox.origin_y;
         // No larger than the background atlas (the frame's bounding box): masks that flag stray

@@ -161,7 +161,7 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
     auto mask = (d.mask > 0.5).to(torch::kFloat32);
     auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o);
     std::vector<double> vx, vy;
-    subject_track(d.mask, vx, vy);
+    subject_track(d, vx, vy);
     std::vector<torch::Tensor> mats;
     for (int64_t t = 0; t < d.frames; ++t) mats.push_back(translation(vx[0] - vx[t], vy[0] - vy[t]));
     auto fg = layer_radius(d, torch::stack(mats), mask, o);
