@@ -382,3 +382,22 @@ TEST_CASE("a checkpoint without the shared matte or the track's kind loads as th
                                     .align_corners(false)));
     CHECK(torch::allclose(alpha, want, 1e-5, 1e-5));
 }
+
+TEST_CASE("a reopened project rebuilds the model its fit trained: the masks are used as stored") {
+    // The subject's track and atlas box come from the masks; the fit that prepared them and a
+    // later export (which reads them back from 8-bit PNG) must agree to the pixel.
+    TinyClip c = make_tiny("fit_reopen_masks", "hunt", "160x90");
+    Project p = Project::load(c.project);
+    PrepareLog log;
+    auto fresh = build_fit_data(p, {}, log);
+    auto reused = build_fit_data(p, {}, log);
+    REQUIRE(fresh->has_subject == reused->has_subject);
+    MESSAGE("tiny hunt clip: " << std::string(fresh->has_subject ? "two layers" : "one layer"));
+    if (fresh->has_subject) CHECK(torch::equal(fresh->mask, reused->mask));
+    auto a = make_model("fast", *fresh, 1), b = make_model("fast", *reused, 1);
+    CHECK(a->atlas_bg().sizes() == b->atlas_bg().sizes());
+    if (fresh->has_subject) {
+        CHECK(a->atlas_fg().sizes() == b->atlas_fg().sizes());
+        CHECK(torch::equal(a->state().at("alpha_atlas"), b->state().at("alpha_atlas")));
+    }
+}

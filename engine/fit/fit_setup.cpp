@@ -112,6 +112,10 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         po.estimate_coc = opts.coc_path.empty();
         prep = prepare_clip(frames, po, log);
         save_prepare(project, prep);
+        // The masks as stored (8-bit): the subject's track and atlas box are computed from them,
+        // and a reopened project (export, the studio, --resume) must rebuild the same model.
+        for (Image& m : prep.masks)
+            for (float& v : m.pixels) v = std::round(std::clamp(v, 0.0f, 1.0f) * 255.0f) / 255.0f;
     }
 
     auto d = std::make_shared<FitData>();
