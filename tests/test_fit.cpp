@@ -342,15 +342,7 @@ TEST_CASE("subject track follows the subject's flow where its masks lose part of
 }
 
 TEST_CASE("a checkpoint without the shared matte or the track's kind loads as the build that wrote it") {
-    auto data = std::make_shared<FitData>();
-    data->frames = 4, data->height = 24, data->width = 40;
-    torch::manual_seed(5);
-    data->input = torch::rand({4, 3, 24, 40});
-    data->radius = torch::full({4, 24, 40}, 1.0f);
-    data->to_ref = torch::eye(3, torch::kFloat64).expand({4, 3, 3}).clone();
-    data->mask = torch::zeros({4, 1, 24, 40});
-    data->mask.narrow(2, 8, 8).narrow(3, 12, 10).fill_(1.0f);
-    data->has_subject = true;
+    auto data = tiny_two_layer_data(5);
     FitOptions o;
     o.preset = "fast";
     o.iters = 4;
@@ -400,4 +392,41 @@ TEST_CASE("a reopened project rebuilds the model its fit trained: the masks are 
         CHECK(a->atlas_fg().sizes() == b->atlas_fg().sizes());
         CHECK(torch::equal(a->state().at("alpha_atlas"), b->state().at("alpha_atlas")));
     }
+}
+
+TEST_CASE("subject track: a subject walking away is followed in size as well") {
+    // A square subject centred at (40, 30) shrinking by 10% a frame; the flow is the expansion
+    // about that centre (everywhere: only the mask's core is read).
+    const int T = 5, H = 64, W = 80;
+    const double cx = 40, cy = 30, k = 0.9;
+    FitData d;
+    d.frames = T, d.height = H, d.width = W;
+    d.mask = torch::zeros({T, 1, H, W});
+    for (int t = 0; t < T; ++t) {
+        const int half = int(std::lround(24 * std::pow(k, t)));
+        d.mask[t][0].narrow(0, int(cy) - half, 2 * half).narrow(1, int(cx) - half, 2 * half).fill_(1.0f);
+    }
+    auto g = torch::meshgrid({torch::arange(H, torch::kFloat32), torch::arange(W, torch::kFloat32)}, "ij");
+    d.flow_fwd = torch::stack({(k - 1) * (g[1] - cx), (k - 1) * (g[0] - cy)}).unsqueeze(0).repeat({T - 1, 1, 1, 1});
+    d.flow_valid = torch::ones({T - 1, 1, H, W});
+    std::vector<double> vx, vy, sc;
+    subject_track(d, vx, vy, &sc);
+    for (int t = 0; t < T; ++t) {
+        CHECK(sc[t] == doctest::Approx(std::pow(k, t)).epsilon(1e-3));
+        // The subject's centre and a corner land on the same track coordinates in every frame.
+        const double corner = 20 * std::pow(k, t);
+        auto m = subject_to_track(vx[t], vy[t], sc[t]);
+        auto c = torch::matmul(m, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+        auto e = torch::matmul(m, torch::tensor({cx + corner, cy - corner, 1.0}, torch::kFloat64));
+        auto m0 = subject_to_track(vx[0], vy[0], sc[0]);
+        auto c0 = torch::matmul(m0, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+        auto e0 = torch::matmul(m0, torch::tensor({cx + 20, cy - 20, 1.0}, torch::kFloat64));
+        CHECK((c - c0).abs().max().item<double>() < 0.05);
+        CHECK((e - e0).abs().max().item<double>() < 0.05);
+    }
+    // A subject of one size keeps scale 1 (the translation track, bit for bit).
+    d.flow_fwd.zero_();
+    for (int t = 0; t < T; ++t) d.mask[t] = d.mask[0];
+    subject_track(d, vx, vy, &sc);
+    for (double s : sc) CHECK(s == 1.0);
 }

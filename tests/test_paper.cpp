@@ -91,17 +91,7 @@ TEST_CASE("paper preset fits a tiny clip, exports, and resumes from a checkpoint
 
     // Checkpoint round trip in process: a fresh engine (same seed) loading the checkpoint
     // renders exactly what the saved one does.
-    auto data = std::make_shared<FitData>();
-    data->frames = 4, data->height = 24, data->width = 40;
-    torch::manual_seed(7);
-    data->input = torch::rand({4, 3, 24, 40});
-    data->radius = torch::full({4, 24, 40}, 1.0f);
-    data->to_ref = torch::eye(3, torch::kFloat64).expand({4, 3, 3}).clone();
-    data->mask = torch::zeros({4, 1, 24, 40});
-    data->mask.narrow(2, 8, 8).narrow(3, 12, 10).fill_(1.0f);
-    data->has_subject = true;
-    data->flow_fwd = torch::zeros({3, 2, 24, 40});
-    data->flow_valid = torch::ones({3, 1, 24, 40});
+    auto data = tiny_two_layer_data(7, true);
     FitOptions o;
     o.preset = "paper";
     o.iters = 6;

@@ -8,6 +8,9 @@
 #include <cstdio>
 #include <random>
 
+#include <torch/torch.h>
+
+#include "fit/fit_model.h"
 #include "io/image_file.h"
 
 namespace refocus::test {
@@ -70,6 +73,23 @@ double max_abs_diff(const Image& a, const Image& b) {
     for (size_t i = 0; i < a.size(); ++i)
         m = std::max(m, std::abs(double(a.pixels[i]) - b.pixels[i]));
     return m;
+}
+
+std::shared_ptr<FitData> tiny_two_layer_data(unsigned seed, bool with_flow) {
+    auto data = std::make_shared<FitData>();
+    data->frames = 4, data->height = 24, data->width = 40;
+    torch::manual_seed(seed);
+    data->input = torch::rand({4, 3, 24, 40});
+    data->radius = torch::full({4, 24, 40}, 1.0f);
+    data->to_ref = torch::eye(3, torch::kFloat64).expand({4, 3, 3}).clone();
+    data->mask = torch::zeros({4, 1, 24, 40});
+    data->mask.narrow(2, 8, 8).narrow(3, 12, 10).fill_(1.0f);
+    data->has_subject = true;
+    if (with_flow) {
+        data->flow_fwd = torch::zeros({3, 2, 24, 40});
+        data->flow_valid = torch::ones({3, 1, 24, 40});
+    }
+    return data;
 }
 
 }  // namespace refocus::test

@@ -3,8 +3,14 @@
 #include <string>
 #include <vector>
 
+#include <memory>
+
 #include "io/image.h"
 #include "util/fs.h"
+
+namespace refocus {
+struct FitData;
+}
 
 namespace refocus::test {
 
@@ -29,5 +35,9 @@ void write_png_sequence(const fs::path& dir, const std::vector<Image>& frames, b
 
 // Max absolute difference.
 double max_abs_diff(const Image& a, const Image& b);
+
+// A tiny two-layer FitData (4 frames of 40x24 random colour, radius 1 px, a static camera, a
+// 10x8 subject mask at (12, 8)); no flow unless `with_flow` (zero flow, all consistent).
+std::shared_ptr<FitData> tiny_two_layer_data(unsigned seed, bool with_flow = false);
 
 }  // namespace refocus::test

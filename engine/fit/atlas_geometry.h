@@ -25,12 +25,19 @@ AtlasBox mapped_frames_box(const torch::Tensor& to_ref, int64_t H, int64_t W);
 // validity [T-1,1,H,W]; undefined: none): the median flow over each mask's core, chained, and
 // placed where the masks' centroids are on the median. Without flow: the mask centroid, frames
 // without a subject keeping the last one seen, smoothed over ±2 frames.
+// With `scale`, also the subject's size per frame (largest 1) where it changes by more than 30%
+// over the clip (the flow's expansion over the subject, chained; 1 elsewhere and without flow):
+// frame pixel p is at (p − c_t)/scale_t in the subject's own coordinates.
 struct FitData;
-void subject_track(const FitData& d, std::vector<double>& cx, std::vector<double>& cy);
+void subject_track(const FitData& d, std::vector<double>& cx, std::vector<double>& cy,
+                   std::vector<double>* scale = nullptr);
+// 3x3 float64: frame px → the subject's coordinates, (p − (cx, cy)) / scale.
+torch::Tensor subject_to_track(double cx, double cy, double scale = 1.0);
 
 // Extent of the subject in coordinates stabilised on the track, plus `margin` px.
 AtlasBox subject_box(const torch::Tensor& mask, const std::vector<double>& cx,
-                     const std::vector<double>& cy, double margin);
+                     const std::vector<double>& cy, double margin,
+                     const std::vector<double>* scale = nullptr);
 
 // Bicubic, border padding, align_corners = false. Bilinear resampling at fractional offsets is
 // itself a blur that the atlas would have to undo. (The C++ functional options of LibTorch 1.13

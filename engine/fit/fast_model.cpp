@@ -69,16 +69,18 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     if (m_two_layers) {
         bg_weight = sharpness * (1.0 - d.mask).clamp_min(1e-3);
         // Foreground mapping: translate so that each frame's subject centroid lands on one point.
-        std::vector<double> vx, vy;
-        subject_track(d, vx, vy);
-        const AtlasBox fbox = subject_box(d.mask, vx, vy, 12.0);
+        std::vector<double> vx, vy, sc;
+        subject_track(d, vx, vy, &sc);
+        const AtlasBox fbox = subject_box(d.mask, vx, vy, 12.0, &sc);
         m_fg.origin_x = fbox.origin_x;
         m_fg.origin_y = fbox.origin_y;
         m_fg.width = fbox.width;
         m_fg.height = fbox.height;
         std::vector<torch::Tensor> mats;
         for (int64_t t = 0; t < T; ++t)
-            mats.push_back(translation(-vx[t] - m_fg.origin_x, -vy[t] - m_fg.origin_y));
+            mats.push_back(sc[t] == 1.0 ? translation(-vx[t] - m_fg.origin_x, -vy[t] - m_fg.origin_y)
+                                        : torch::matmul(translation(-m_fg.origin_x, -m_fg.origin_y),
+                                                        subject_to_track(vx[t], vy[t], sc[t])));
         m_fg.to_atlas = torch::stack(mats).to(torch::kFloat32);
         m_fg.learn_warp = true;
         m_fg.warp = torch::zeros({T, 2, gh, gw});

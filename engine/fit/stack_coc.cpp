@@ -160,10 +160,14 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
     // reads as blur; measured on the synth rack clip: 3-3.7 px on a subject in focus).
     auto mask = (d.mask > 0.5).to(torch::kFloat32);
     auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o);
-    std::vector<double> vx, vy;
-    subject_track(d, vx, vy);
+    std::vector<double> vx, vy, sc;
+    subject_track(d, vx, vy, &sc);
     std::vector<torch::Tensor> mats;
-    for (int64_t t = 0; t < d.frames; ++t) mats.push_back(translation(vx[0] - vx[t], vy[0] - vy[t]));
+    const auto from_track0 = torch::inverse(subject_to_track(vx[0], vy[0], sc[0]));
+    for (int64_t t = 0; t < d.frames; ++t)
+        mats.push_back(sc[t] == 1.0 && sc[0] == 1.0
+                           ? translation(vx[0] - vx[t], vy[0] - vy[t])
+                           : torch::matmul(from_track0, subject_to_track(vx[t], vy[t], sc[t])));
     auto fg = layer_radius(d, torch::stack(mats), mask, o);
     return torch::where(mask.squeeze(1) > 0.5, fg, bg).contiguous();
 }
