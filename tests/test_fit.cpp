@@ -13,6 +13,7 @@
 #include "fit/atlas_geometry.h"
 #include "fit/fit_engine.h"
 #include "fit/fit_setup.h"
+#include "fit/stack_coc.h"
 #include "project/project.h"
 #include "test_util.h"
 #include "util/error.h"
@@ -429,4 +430,38 @@ TEST_CASE("subject track: a subject walking away is followed in size as well") {
     for (int t = 0; t < T; ++t) d.mask[t] = d.mask[0];
     subject_track(d, vx, vy, &sc);
     for (double s : sc) CHECK(s == 1.0);
+}
+
+TEST_CASE("each layer's radius: the subject's spreads past its silhouette, the wall's continues behind it") {
+    // Two frames 40x30: a 12x10 subject at radius 5 in front of a wall whose radius ramps
+    // 1 → 2.45 px left to right; frame 1 has no subject.
+    FitData d;
+    d.frames = 2, d.height = 30, d.width = 40;
+    d.has_subject = true;
+    auto ramp = (1.0 + torch::arange(40, torch::kFloat32) * 0.0375).view({1, 1, 40}).expand({2, 30, 40});
+    d.radius = ramp.clone();
+    d.mask = torch::zeros({2, 1, 30, 40});
+    d.mask[0].narrow(1, 10, 10).narrow(2, 14, 12).fill_(1.0);
+    d.radius[0].narrow(0, 10, 10).narrow(1, 14, 12).fill_(5.0);
+    split_radius_by_layer(d);
+    REQUIRE(d.radius_fg.defined());
+    REQUIRE(d.radius_bg.defined());
+    // Where each layer is sure (2 px inside its own region) it keeps the map as given.
+    CHECK(torch::allclose(d.radius_fg[0].narrow(0, 12, 6).narrow(1, 16, 8), torch::full({6, 8}, 5.0f)));
+    CHECK(torch::allclose(d.radius_bg[0].narrow(0, 0, 8), ramp[0].narrow(0, 0, 8)));
+    // The subject's radius reaches past its edge (its blurred edge scatters over the wall).
+    CHECK(d.radius_fg[0][15][10].item<float>() == doctest::Approx(5.0).epsilon(0.02));
+    CHECK(d.radius_fg[0][5][20].item<float>() == doctest::Approx(5.0).epsilon(0.02));
+    // Behind the subject the wall keeps the wall's radius, within its ramp's range there.
+    auto behind = d.radius_bg[0].narrow(0, 10, 10).narrow(1, 14, 12);
+    CHECK(behind.min().item<float>() > 1.4f);
+    CHECK(behind.max().item<float>() < 2.1f);
+    // A frame without the subject keeps the map for both layers.
+    CHECK(torch::equal(d.radius_fg[1], d.radius[1]));
+    CHECK(torch::equal(d.radius_bg[1], d.radius[1]));
+    // One layer: nothing split.
+    d.mask = torch::Tensor();
+    split_radius_by_layer(d);
+    CHECK_FALSE(d.radius_fg.defined());
+    CHECK(d.layer_radius(true).data_ptr() == d.radius.data_ptr());
 }

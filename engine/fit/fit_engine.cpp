@@ -15,6 +15,7 @@
 #include "fit/losses.h"
 #include "fit/paper_model.h"
 #include "fit/perframe.h"
+#include "fit/stack_coc.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -65,6 +66,12 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (!torch::isfinite(m_data->radius).all().item<bool>() ||
         (m_data->radius < 0).any().item<bool>())
         throw Error("fit: the radius maps contain NaN/Inf or negative values");
+    if (m_opts.preset != "perframe") {
+        bool on = m_opts.layer_radius;
+        if (const char* e = std::getenv("REFOCUS_LAYER_RADIUS")) on = std::atoi(e) != 0;  // A/B hook
+        if (on) split_radius_by_layer(*m_data);
+        else m_data->radius_fg = m_data->radius_bg = torch::Tensor();
+    }
     {
         torch::NoGradGuard g;
         m_target = srgb_encode(m_data->input);
@@ -74,9 +81,13 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (m_model) {
         m_pad = m_model->max_pad();
         if (m_pad > 0) {
-            m_radius_pad = F::pad(m_data->radius.unsqueeze(1),
-                                  F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
-                               .squeeze(1);
+            auto padded = [&](const torch::Tensor& r) {
+                return F::pad(r.unsqueeze(1), F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
+                    .squeeze(1);
+            };
+            m_radius_pad = padded(m_data->radius);
+            m_radius_fg_pad = padded(m_data->layer_radius(true));
+            m_radius_bg_pad = padded(m_data->layer_radius(false));
         }
         make_optimizer();
     } else {
@@ -135,15 +146,25 @@ torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& fra
     if (pad != 0 && pad != m_pad) throw Error("reblur: layers padded by an unexpected margin");
     std::vector<torch::Tensor> out;
     for (size_t b = 0; b < frames.size(); ++b) {
-        auto r = pad ? m_radius_pad[frames[b]] : m_data->radius[frames[b]];
+        const int64_t t = frames[b];
         if (!L.fg.defined()) {
+            auto r = pad ? m_radius_pad[t] : m_data->radius[t];
             out.push_back(lens_blur(L.sharp[b], r, m_opts.blur));  // paper eq. 3
             continue;
         }
-        // Layered reblur, one 7-channel pass: [α·F, α, B] share the taps.
+        // Layered reblur L(α·F) + (1 − L(α))·L(B): α·F and α scatter with the subject's radius,
+        // B with the wall's (the same map for both unless split_radius_by_layer gave two, then
+        // two passes).
         auto a = L.alpha[b];
-        auto stack = torch::cat({a * L.fg[b], a, L.bg[b]}, 0);
-        auto bl = lens_blur(stack, r, m_opts.blur);
+        auto rf = pad ? m_radius_fg_pad[t] : m_data->layer_radius(true)[t];
+        auto rb = pad ? m_radius_bg_pad[t] : m_data->layer_radius(false)[t];
+        if (m_data->radius_fg.defined()) {
+            auto blf = lens_blur(torch::cat({a * L.fg[b], a}, 0), rf, m_opts.blur);
+            auto blb = lens_blur(L.bg[b], rb, m_opts.blur);
+            out.push_back(blf.narrow(0, 0, 3) + (1.0 - blf.narrow(0, 3, 1)) * blb);
+            continue;
+        }
+        auto bl = lens_blur(torch::cat({a * L.fg[b], a, L.bg[b]}, 0), rf, m_opts.blur);  // one 7-channel pass
         out.push_back(bl.narrow(0, 0, 3) + (1.0 - bl.narrow(0, 3, 1)) * bl.narrow(0, 4, 3));
     }
     auto rb = torch::stack(out);

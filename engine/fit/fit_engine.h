@@ -44,6 +44,9 @@ struct FitOptions {
     // (and at least `fallback_min`, sRGB) the input shows through, fully at twice that.
     double fallback_k = 4.0;
     double fallback_min = 0.04;
+    // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
+    // instead of the visible surface's map for both. Measured in README "How the fit works" 4.
+    bool layer_radius = true;
 };
 
 struct FitSnapshot {
@@ -118,7 +121,8 @@ private:
     torch::Tensor m_target;     // [T,3,H,W] sRGB-encoded input
     torch::Tensor m_resid;      // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
     int64_t m_pad = 0;          // training renders this margin beyond the frame (max_pad)
-    torch::Tensor m_radius_pad; // [T,H+2pad,W+2pad] radius, edges replicated
+    // [T,H+2pad,W+2pad] radius, edges replicated: the visible surface's, the subject's, the wall's
+    torch::Tensor m_radius_pad, m_radius_fg_pad, m_radius_bg_pad;
     std::mt19937_64 m_rng;
     std::vector<int64_t> m_perm;
     size_t m_perm_pos = 0;

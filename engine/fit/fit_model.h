@@ -18,7 +18,10 @@ namespace refocus {
 struct FitData {
     int frames = 0, height = 0, width = 0;
     torch::Tensor input;      // [T,3,H,W] linear light
-    torch::Tensor radius;     // [T,H,W] circle-of-confusion radius, px
+    torch::Tensor radius;     // [T,H,W] circle-of-confusion radius, px, of the visible surface
+    // Each layer's own radius with two layers (split_radius_by_layer, stack_coc.h): the subject's
+    // beyond its silhouette, the wall's behind the subject. Undefined: `radius` for both.
+    torch::Tensor radius_fg, radius_bg;  // [T,H,W]
     torch::Tensor mask;       // [T,1,H,W] foreground in [0,1]; undefined: one layer
     torch::Tensor to_ref;     // [T,3,3] float64 homography frame t → reference frame
     torch::Tensor flow_fwd;   // [T-1,2,H,W] flow t → t+1, px (prepare/flow.h); may be undefined
@@ -28,6 +31,11 @@ struct FitData {
     // The subject's track as builds before the eighth session made it (mask centroids), for
     // their checkpoints (FitEngine::load_checkpoint sets it); new fits chain the flow.
     bool legacy_subject_track = false;
+
+    const torch::Tensor& layer_radius(bool foreground) const {
+        const torch::Tensor& r = foreground ? radius_fg : radius_bg;
+        return r.defined() ? r : radius;
+    }
 };
 
 // One rendered batch of frames. All [B,...].

@@ -149,7 +149,47 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
     return torch::stack(out).contiguous();
 }
 
+// Push-pull fill: v [N,1,H,W] kept where w (0/1) is 1, the rest filled from the nearest kept
+// values at the coarsest scale that reaches them, blended up the pyramid.
+torch::Tensor fill_from(const torch::Tensor& v, const torch::Tensor& w) {
+    if ((w > 0).all().item<bool>()) return v;
+    if (std::min(v.size(2), v.size(3)) <= 1) {  // coarsest: holes take the kept values' mean
+        auto mean = (v * w).sum({2, 3}, true) / w.sum({2, 3}, true).clamp_min(1e-12);
+        return w * v + (1 - w) * mean;
+    }
+    auto opts = F::AvgPool2dFuncOptions(2).stride(2).ceil_mode(true);
+    auto wd = F::avg_pool2d(w, opts);
+    auto vd = F::avg_pool2d(v * w, opts) / wd.clamp_min(1e-12);
+    auto coarse = fill_from(vd, (wd > 0).to(v.scalar_type()));
+    auto up = F::interpolate(coarse, F::InterpolateFuncOptions()
+                                         .size(std::vector<int64_t>{v.size(2), v.size(3)})
+                                         .mode(torch::kBilinear)
+                                         .align_corners(false));
+    return w * v + (1 - w) * up;
+}
+
 }  // namespace
+
+void split_radius_by_layer(FitData& d, int margin) {
+    d.radius_fg = d.radius_bg = torch::Tensor();
+    if (!d.has_subject || !d.mask.defined()) return;
+    torch::NoGradGuard no_grad;
+    auto r = d.radius.unsqueeze(1);                                 // [T,1,H,W]
+    auto fg = (d.mask > 0.5).to(torch::kFloat32);
+    auto sure_fg = erode(fg, margin), sure_bg = erode(1.0 - fg, margin);
+    std::vector<torch::Tensor> rf, rb;
+    for (int64_t t = 0; t < d.frames; ++t) {
+        // A frame without a sure pixel of a layer keeps the visible surface's map for it.
+        auto one = [&](const torch::Tensor& sure) {
+            auto s = sure[t].unsqueeze(0);
+            return s.sum().item<double>() > 0 ? fill_from(r[t].unsqueeze(0), s)[0][0] : d.radius[t];
+        };
+        rf.push_back(one(sure_fg));
+        rb.push_back(one(sure_bg));
+    }
+    d.radius_fg = torch::stack(rf).contiguous();
+    d.radius_bg = torch::stack(rb).contiguous();
+}
 
 torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o) {
     torch::NoGradGuard no_grad;

@@ -29,4 +29,14 @@ struct StackCocOptions {
 // [T,H,W] radius maps for d.input registered by d.to_ref. Needs at least 2 frames.
 torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& opts = {});
 
+// Each layer's own radius (FitData::radius_fg / radius_bg) from the visible surface's map
+// `d.radius` and the masks. The map holds the subject's radius inside its silhouette and the
+// wall's outside; the lens blur layer scatters every source pixel over its own radius, so the
+// subject's α·F and α must spread with the subject's radius beyond its edge, and the wall
+// behind the subject's edge (seen through a blurred edge, paper eq. 3 layered) with the
+// wall's. Each layer keeps the map where its mask is sure (eroded by `margin` px, so that a
+// mask a little off the true silhouette does not hand one layer the other's radius) and is
+// filled elsewhere from there (push-pull). One layer (no mask): left undefined.
+void split_radius_by_layer(FitData& d, int margin = 2);
+
 }  // namespace refocus
