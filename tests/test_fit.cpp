@@ -465,3 +465,34 @@ TEST_CASE("each layer's radius: the subject's spreads past its silhouette, the w
     CHECK_FALSE(d.radius_fg.defined());
     CHECK(d.layer_radius(true).data_ptr() == d.radius.data_ptr());
 }
+
+TEST_CASE("a checkpoint keeps its atlases' geometry: a build that would place them otherwise renders what was trained") {
+    auto data = tiny_two_layer_data(7);
+    FitOptions o;
+    o.preset = "fast";
+    o.iters = 6;
+    FitEngine a(data, o);
+    for (int i = 0; i < 3; ++i) a.step();
+    const fs::path ck = scratch_dir("fit_geometry_checkpoint");
+    a.save_checkpoint(ck);
+    // The same clip whose masks now say the subject is wider and lower: this build computes
+    // another foreground box and track for it.
+    auto data_b = std::make_shared<FitData>(*data);
+    data_b->mask = torch::zeros_like(data->mask);
+    data_b->mask.narrow(2, 11, 10).narrow(3, 9, 16).fill_(1.0f);
+    FitEngine b(data_b, o);
+    REQUIRE_FALSE(b.model().atlas_fg().sizes() == a.model().atlas_fg().sizes());
+    b.load_checkpoint(ck);
+    CHECK(b.model().atlas_fg().sizes() == a.model().atlas_fg().sizes());
+    CHECK(torch::equal(a.render_frame(2).sharp, b.render_frame(2).sharp));
+    CHECK(torch::equal(a.render_frame(2).alpha, b.render_frame(2).alpha));
+    // Training goes on from there (the optimiser follows the adopted tensors; its masks differ,
+    // so its bootstrap term does too).
+    b.step();
+    CHECK(std::isfinite(b.snapshot().loss));
+    CHECK(b.model().atlas_fg().sizes() == a.model().atlas_fg().sizes());
+    // A geometry that does not fit the clip is refused with the tensor named.
+    auto state = a.model().state();
+    state["fg_to_atlas"] = torch::eye(3).expand({2, 3, 3}).clone();
+    CHECK_THROWS_WITH_AS(b.model().load_state(state), doctest::Contains("fg atlas"), Error);
+}

@@ -334,22 +334,63 @@ void FastModel::set_atlas_fg(const torch::Tensor& rgb) {
     set_atlas(m_fg, rgb);
 }
 
-void FastModel::load_state(const std::map<std::string, torch::Tensor>& s) {
-    if (m_two_layers && !s.count("alpha_atlas")) {
-        // An earlier build's checkpoint: its per-frame matte was all of alpha.
-        auto with = s;
-        with["alpha_atlas"] = torch::zeros_like(m_alpha_atlas);
-        FitModel::load_state(with);
+void FastModel::load_state(const std::map<std::string, torch::Tensor>& in) {
+    auto s = in;
+    // An earlier build's checkpoint: its per-frame matte was all of alpha.
+    if (m_two_layers && !s.count("alpha_atlas")) s["alpha_atlas"] = torch::zeros_like(m_alpha_atlas);
+    adopt_geometry(m_bg, "bg", s);
+    if (m_two_layers) {
+        adopt_geometry(m_fg, "fg", s);
+        const auto& a = s.at("alpha_atlas");
+        if (a.dim() == 4 && !a.sizes().equals(m_alpha_atlas.sizes())) {
+            m_alpha_atlas = torch::zeros_like(a);
+            m_alpha_h = a.size(2);
+            m_alpha_w = a.size(3);
+        }
+    }
+    FitModel::load_state(s);  // the parameters may be new tensors: the engine remakes its optimiser
+}
+
+torch::Tensor FastModel::geometry(const Atlas& a) {
+    return torch::tensor({a.origin_x, a.origin_y, double(a.width), double(a.height)}, torch::kFloat64);
+}
+
+void FastModel::adopt_geometry(Atlas& a, const std::string& name, std::map<std::string, torch::Tensor>& s) {
+    auto g = s.find(name + "_geometry"), m = s.find(name + "_to_atlas");
+    if (g == s.end() || m == s.end()) {  // earlier builds: the geometry computed from the data
+        s[name + "_geometry"] = geometry(a);
+        s[name + "_to_atlas"] = a.to_atlas;
         return;
     }
-    FitModel::load_state(s);
+    if (!g->second.sizes().equals({4}) || !m->second.sizes().equals(a.to_atlas.sizes()))
+        throw Error("checkpoint geometry of the " + name + " atlas has shape " + c10::str(g->second.sizes()) +
+                    " / " + c10::str(m->second.sizes()) + ", the model expects [4] / " + c10::str(a.to_atlas.sizes()));
+    auto v = g->second.to(torch::kFloat64).contiguous();
+    const double* p = v.data_ptr<double>();
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !(p[2] >= 1 && p[2] < 1e5) || !(p[3] >= 1 && p[3] < 1e5) ||
+        !torch::isfinite(m->second).all().item<bool>())
+        throw Error("checkpoint geometry of the " + name + " atlas is not finite or out of range");
+    a.origin_x = p[0];
+    a.origin_y = p[1];
+    a.width = int64_t(p[2]);
+    a.height = int64_t(p[3]);
+    a.to_atlas = m->second.to(torch::kFloat32).clone();
+    for (size_t l = 0; l < a.levels.size(); ++l) {
+        auto it = s.find(name + "_level" + std::to_string(l));
+        if (it != s.end() && !it->second.sizes().equals(a.levels[l].sizes()))
+            a.levels[l] = torch::zeros_like(it->second);  // copied into by FitModel::load_state
+    }
 }
 
 std::map<std::string, torch::Tensor> FastModel::state() {
     std::map<std::string, torch::Tensor> s;
     for (size_t l = 0; l < m_bg.levels.size(); ++l) s["bg_level" + std::to_string(l)] = m_bg.levels[l];
     s["bg_warp"] = m_bg.warp;
+    s["bg_geometry"] = geometry(m_bg);
+    s["bg_to_atlas"] = m_bg.to_atlas;
     if (m_two_layers) {
+        s["fg_geometry"] = geometry(m_fg);
+        s["fg_to_atlas"] = m_fg.to_atlas;
         for (size_t l = 0; l < m_fg.levels.size(); ++l) s["fg_level" + std::to_string(l)] = m_fg.levels[l];
         s["fg_warp"] = m_fg.warp;
         s["alpha_logit"] = m_alpha_logit;

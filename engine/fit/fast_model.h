@@ -72,6 +72,11 @@ private:
     // atlas shifted by a pixel scores worse than the blurred input.
     void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
                           bool affine, double max_shift);
+    // Checkpoints hold each atlas's geometry (its box and per-frame mapping) beside its texels:
+    // a reopened project keeps what its fit trained, even when a later build would place the
+    // atlas differently. A state without it (earlier builds) keeps the geometry just computed.
+    static torch::Tensor geometry(const Atlas& a);
+    void adopt_geometry(Atlas& a, const std::string& name, std::map<std::string, torch::Tensor>& s);
 
     const FitData& m_data;
     FastModelOptions m_opts;

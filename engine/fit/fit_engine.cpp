@@ -454,6 +454,7 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
         } catch (const Error& e) {
             throw Error(file_error(pt.string(), e.what()));
         }
+        make_optimizer();  // load_state may have given the model new tensors (a stored geometry)
         torch::Tensor resid;  // older checkpoints lack it: the running residual starts again
         if (ar.try_read("robust_resid", resid) && resid.sizes().equals(m_resid.sizes())) m_resid.copy_(resid);
         torch::serialize::InputArchive opt;
