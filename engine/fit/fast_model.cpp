@@ -101,13 +101,18 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                                      torch::kFloat64).view({3, 3});
         m_alpha_h = std::max<int64_t>(1, (m_fg.height + 1) / 2);
         m_alpha_w = std::max<int64_t>(1, (m_fg.width + 1) / 2);
+        // How sharp the subject is in each frame is the subject's own radius (d.radius_fg where
+        // the engine split it): where a blurred subject's mask lost its head, the visible
+        // surface's radius there is the wall's, sharp when focus is on the wall, and such a
+        // frame's "no head" was trusted most.
+        const auto subject_r = d.layer_radius(true).unsqueeze(1);
         auto fused_mask = fuse_frames(torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
-                                      m_alpha_h, m_alpha_w, d.mask, sharpness);
+                                      m_alpha_h, m_alpha_w, d.mask, (subject_r + 0.5).pow(-4.0));
         m_alpha_atlas = torch::logit(fused_mask.unsqueeze(0).clamp(0.01, 0.99));
         m_alpha_logit = torch::zeros({T, 1, (H + 3) / 4, (W + 3) / 4});
         // The masks are trusted as much as the subject is sharp there (1 at r = 0, 0.2 at 4 px),
         // relative to the clip (a subject never in focus keeps its masks' full weight).
-        auto trust = 1.0 / (1.0 + (d.radius.unsqueeze(1) / 2.0).pow(2));
+        auto trust = 1.0 / (1.0 + (subject_r / 2.0).pow(2));
         m_boot_weight = trust / trust.mean().clamp_min(1e-6);
     }
     if (!d.static_camera)
