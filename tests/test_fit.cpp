@@ -353,7 +353,7 @@ TEST_CASE("a checkpoint without the shared matte or the track's kind loads as th
     a.save_checkpoint(ck);
     // As an earlier build wrote it: no "subject_track" field.
     auto j = nlohmann::json::parse(read_text_file(ck / "checkpoint.json"));
-    CHECK(j.at("subject_track") == "flow");
+    CHECK(j.at("subject_track") == "flow-v2");
     j.erase("subject_track");
     write_file_atomic(ck / "checkpoint.json", j.dump());
     auto data_b = std::make_shared<FitData>(*data);
@@ -491,8 +491,57 @@ TEST_CASE("a checkpoint keeps its atlases' geometry: a build that would place th
     b.step();
     CHECK(std::isfinite(b.snapshot().loss));
     CHECK(b.model().atlas_fg().sizes() == a.model().atlas_fg().sizes());
+    // An eighth-session checkpoint ("flow": masks as stored, no cleaning) rebuilds from them.
+    auto j = nlohmann::json::parse(read_text_file(ck / "checkpoint.json"));
+    j["subject_track"] = "flow";
+    write_file_atomic(ck / "checkpoint.json", j.dump());
+    auto data_c = std::make_shared<FitData>(*data_b);
+    data_c->mask_as_stored = data->mask.clone();
+    FitEngine c(data_c, o);
+    c.load_checkpoint(ck);
+    CHECK(c.data().legacy_track_gaps);
+    CHECK_FALSE(c.data().legacy_subject_track);
+    CHECK(torch::equal(c.data().mask, data->mask));
+    CHECK(torch::equal(a.render_frame(2).sharp, c.render_frame(2).sharp));
     // A geometry that does not fit the clip is refused with the tensor named.
     auto state = a.model().state();
     state["fg_to_atlas"] = torch::eye(3).expand({2, 3, 3}).clone();
     CHECK_THROWS_WITH_AS(b.model().load_state(state), doctest::Contains("fg atlas"), Error);
+}
+
+TEST_CASE("automatic masks cleaned along the subject's track: a passing blob is dropped, a lost frame refilled") {
+    // A 12x12 subject moving 2 px a frame to the right over 8 frames of 80x40 (flow to match).
+    // Frame 3's mask also holds a wall tile; frame 5's lost the subject.
+    FitData d;
+    d.frames = 8, d.height = 40, d.width = 80;
+    d.has_subject = true;
+    d.input = torch::zeros({8, 3, 40, 80});
+    d.radius = torch::zeros({8, 40, 80});
+    d.to_ref = torch::eye(3, torch::kFloat64).expand({8, 3, 3}).clone();
+    d.flow_fwd = torch::zeros({7, 2, 40, 80});
+    d.flow_fwd.select(1, 0).fill_(2.0f);
+    d.flow_valid = torch::ones({7, 1, 40, 80});
+    d.mask = torch::zeros({8, 1, 40, 80});
+    for (int t = 0; t < 8; ++t)
+        if (t != 5) d.mask[t][0].narrow(0, 14, 12).narrow(1, 10 + 2 * t, 12).fill_(1.0f);
+    d.mask[3][0].narrow(0, 0, 8).narrow(1, 60, 14).fill_(1.0f);
+    auto want = d.mask.clone();
+    want[3][0].narrow(0, 0, 8).narrow(1, 60, 14).zero_();
+    want[5][0].narrow(0, 14, 12).narrow(1, 20, 12).fill_(1.0f);
+    const std::string line = clean_subject_masks(d);
+    MESSAGE(line);
+    CHECK(line.find("1 part(s)") != std::string::npos);
+    CHECK(line.find("1 frame(s)") != std::string::npos);
+    CHECK((d.mask > 0.5).eq(want > 0.5).all().item<bool>());
+    // A subject leaving the frame is not put back: its mask shrinks as the moved one would.
+    FitData e = d;
+    e.mask = torch::zeros({8, 1, 40, 80});
+    for (int t = 0; t < 8; ++t) {
+        const int x0 = 50 + 4 * t, x1 = std::min(80, x0 + 12);
+        if (x1 > x0) e.mask[t][0].narrow(0, 14, 12).narrow(1, x0, x1 - x0).fill_(1.0f);
+    }
+    e.flow_fwd.select(1, 0).fill_(4.0f);
+    auto before = e.mask.clone();
+    clean_subject_masks(e);
+    CHECK(torch::equal(e.mask > 0.5, before > 0.5));
 }

@@ -5,10 +5,13 @@
 
 #include "fit/fit_model.h"
 
+#include <opencv2/imgproc.hpp>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <string>
 
 namespace refocus {
 
@@ -106,7 +109,17 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
             // The flow at the core's centre: the median once the expansion is taken out.
             zdx = (fx.to(torch::kFloat64) - (st - 1.0) * qx).median().item<double>();
             zdy = (fy.to(torch::kFloat64) - (st - 1.0) * qy).median().item<double>();
-        } else {  // no measurable subject: the centroids' step
+        } else if (t > 0 && !d.legacy_track_gaps) {
+            // No measurable subject (its mask is missing): the previous step again. The masks'
+            // centroids hold the last one seen there, and their step after the gap had added
+            // the gap's motion twice.
+            dx = sx[t] - sx[t - 1];
+            dy = sy[t] - sy[t - 1];
+            st = zs[t] / zs[t - 1];
+            ccx = zx[t], ccy = zy[t];  // about the track point: z_{t+1} = z_t + (z_t − z_{t−1})
+            zdx = zx[t] - zx[t - 1];
+            zdy = zy[t] - zy[t - 1];
+        } else {  // the centroids' step
             dx = zdx = rx[t + 1] - rx[t];
             dy = zdy = ry[t + 1] - ry[t];
         }
@@ -196,6 +209,116 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
     }
     auto mean = acc.sum({1, 2}, true) / wsum.sum().clamp_min(1e-12);
     return torch::where(wsum > 1e-8, acc / wsum.clamp_min(1e-8), mean.expand_as(acc));
+}
+
+}  // namespace refocus
+
+namespace refocus {
+
+std::string clean_subject_masks(FitData& d, double min_persistence) {
+    if (!d.has_subject || !d.mask.defined() || d.frames < 3) return {};
+    torch::NoGradGuard no_grad;
+    namespace F = torch::nn::functional;
+    const int64_t T = d.frames, H = d.height, W = d.width;
+    std::vector<double> vx, vy, sc;
+    subject_track(d, vx, vy, &sc);
+    auto bin = (d.mask.squeeze(1) > 0.5).to(torch::kUInt8).contiguous();  // [T,H,W]
+    const uint8_t* mb = bin.data_ptr<uint8_t>();
+    auto at = [&](int64_t u, double x, double y) -> int {  // -1 outside the frame
+        const long xi = std::lround(x), yi = std::lround(y);
+        if (xi < 0 || yi < 0 || xi >= W || yi >= H) return -1;
+        return mb[(u * H + yi) * W + xi];
+    };
+    const bool debug = std::getenv("REFOCUS_DEBUG_MASKS") != nullptr;
+    int dropped = 0, filled = 0;
+    std::vector<double> area(T, 0.0);
+    std::vector<torch::Tensor> kept;
+    for (int64_t t = 0; t < T; ++t) {
+        cv::Mat m(int(H), int(W), CV_8U, const_cast<uint8_t*>(mb + t * H * W));
+        cv::Mat labels, stats, centroids;
+        const int n = cv::connectedComponentsWithStats(m, labels, stats, centroids, 8, CV_32S);
+        cv::Mat keep = cv::Mat::zeros(int(H), int(W), CV_8U);
+        for (int k = 1; k < n; ++k) {
+            // How often the other frames' masks hold this part's pixels at the same place on the
+            // subject (moved along the track); a pixel that leaves a frame does not count there.
+            int64_t hits = 0, seen = 0;
+            const int x0 = stats.at<int>(k, cv::CC_STAT_LEFT), y0 = stats.at<int>(k, cv::CC_STAT_TOP);
+            const int w = stats.at<int>(k, cv::CC_STAT_WIDTH), h = stats.at<int>(k, cv::CC_STAT_HEIGHT);
+            for (int y = y0; y < y0 + h; y += 2)
+                for (int x = x0; x < x0 + w; x += 2) {
+                    if (labels.at<int>(y, x) != k) continue;
+                    for (int64_t u = 0; u < T; ++u) {
+                        if (u == t) continue;
+                        const double f = sc[u] / sc[t];
+                        const int v = at(u, (x - vx[t]) * f + vx[u], (y - vy[t]) * f + vy[u]);
+                        if (v < 0) continue;
+                        ++seen;
+                        hits += v;
+                    }
+                }
+            const double pers = seen ? double(hits) / double(seen) : 1.0;
+            const int a = stats.at<int>(k, cv::CC_STAT_AREA);
+            if (debug)
+                std::fprintf(stderr, "mask %lld part %d: %d px at (%d,%d) persistence %.2f\n", (long long)t, k, a,
+                             x0, y0, pers);
+            if (pers < min_persistence) {
+                ++dropped;
+                continue;
+            }
+            keep.setTo(255, labels == k);
+            area[t] += a;
+        }
+        // Kept parts with their soft edge (the mask's values within 2 px of them).
+        cv::dilate(keep, keep, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+        auto kt = torch::from_blob(keep.data, {1, H, W}, torch::kUInt8).to(torch::kFloat32) / 255.0;
+        kept.push_back(d.mask[t] * kt);
+    }
+    // A frame whose mask lost most of the subject (under 30% of the clip's median area, at the
+    // subject's size in that frame) takes the nearest frame's that holds it (over 50%), moved
+    // along the track, where that covers at least twice as much of the frame (a subject leaving
+    // the frame loses area the moved mask loses too).
+    std::vector<double> norm(T), nz;
+    for (int64_t t = 0; t < T; ++t) {
+        norm[t] = area[t] / (sc[t] * sc[t]);
+        if (norm[t] > 0) nz.push_back(norm[t]);
+    }
+    if (!nz.empty()) {
+        std::nth_element(nz.begin(), nz.begin() + nz.size() / 2, nz.end());
+        const double med = nz[nz.size() / 2];
+        std::vector<int64_t> good;
+        for (int64_t t = 0; t < T; ++t)
+            if (norm[t] >= 0.5 * med) good.push_back(t);
+        auto ys = torch::arange(H, torch::kFloat64), xs = torch::arange(W, torch::kFloat64);
+        auto g = torch::meshgrid({ys, xs}, "ij");
+        for (int64_t t = 0; !good.empty() && t < T; ++t) {
+            if (norm[t] >= 0.3 * med) continue;
+            int64_t u = good.front();
+            for (int64_t k : good)
+                if (std::abs(k - t) < std::abs(u - t)) u = k;
+            // Frame t's pixel p is frame u's (p − c_t)·s_u/s_t + c_u (grid_sample, align_corners false).
+            const double f = sc[u] / sc[t];
+            auto px = (g[1] - vx[t]) * f + vx[u], py = (g[0] - vy[t]) * f + vy[u];
+            auto grid = torch::stack({(px + 0.5) * (2.0 / W) - 1.0, (py + 0.5) * (2.0 / H) - 1.0}, -1)
+                            .to(torch::kFloat32)
+                            .unsqueeze(0);
+            auto moved = F::grid_sample(kept[u].unsqueeze(0), grid,
+                                        F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kZeros).align_corners(false))[0];
+            const double moved_area = (moved > 0.5).sum().item<double>();
+            if (debug)
+                std::fprintf(stderr, "mask %lld: %.0f px (median %.0f at its size), frame %lld's moved onto it %.0f px\n",
+                             (long long)t, area[t], med * sc[t] * sc[t], (long long)u, moved_area);
+            if (moved_area < 2.0 * area[t] || moved_area < 16) continue;
+            kept[t] = moved;
+            ++filled;
+        }
+    }
+    d.mask = torch::stack(kept).contiguous();
+    char line[240];
+    std::snprintf(line, sizeof line,
+                  "masks: %d part(s) that the other frames do not hold on the subject dropped, %d frame(s) "
+                  "that lost the subject given their neighbour's mask along its track",
+                  dropped, filled);
+    return line;
 }
 
 }  // namespace refocus

@@ -5,6 +5,7 @@
 // both presets start from.
 #include <torch/types.h>
 
+#include <string>
 #include <vector>
 
 namespace refocus {
@@ -38,6 +39,14 @@ torch::Tensor subject_to_track(double cx, double cy, double scale = 1.0);
 AtlasBox subject_box(const torch::Tensor& mask, const std::vector<double>& cx,
                      const std::vector<double>& cy, double margin,
                      const std::vector<double>* scale = nullptr);
+
+// Automatic masks cleaned with the subject's track (d.mask replaced; returns a log line):
+// a connected part of a frame's mask whose pixels the other frames' masks hold at the same
+// place on the subject (moved along the track) less than `min_persistence` of the time is
+// dropped (a wall tile a focus change flagged for a few frames); a frame between frames that
+// hold the subject whose mask lost most of it takes the nearest such frame's mask moved along
+// the track.
+std::string clean_subject_masks(FitData& d, double min_persistence = 0.25);
 
 // Bicubic, border padding, align_corners = false. Bilinear resampling at fractional offsets is
 // itself a blur that the atlas would have to undo. (The C++ functional options of LibTorch 1.13

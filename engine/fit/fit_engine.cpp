@@ -66,34 +66,36 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (!torch::isfinite(m_data->radius).all().item<bool>() ||
         (m_data->radius < 0).any().item<bool>())
         throw Error("fit: the radius maps contain NaN/Inf or negative values");
-    if (m_opts.preset != "perframe") {
-        bool on = m_opts.layer_radius;
-        if (const char* e = std::getenv("REFOCUS_LAYER_RADIUS")) on = std::atoi(e) != 0;  // A/B hook
-        if (on) split_radius_by_layer(*m_data);
-        else m_data->radius_fg = m_data->radius_bg = torch::Tensor();
-    }
     {
         torch::NoGradGuard g;
         m_target = srgb_encode(m_data->input);
         m_resid = torch::full({m_data->frames, 1, m_data->height, m_data->width}, -1.0f);
     }
-    m_model = make_model(m_opts.preset, *m_data, m_opts.seed);
-    if (m_model) {
-        m_pad = m_model->max_pad();
-        if (m_pad > 0) {
-            auto padded = [&](const torch::Tensor& r) {
-                return F::pad(r.unsqueeze(1), F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
-                    .squeeze(1);
-            };
-            m_radius_pad = padded(m_data->radius);
-            m_radius_fg_pad = padded(m_data->layer_radius(true));
-            m_radius_bg_pad = padded(m_data->layer_radius(false));
-        }
-        make_optimizer();
-    } else {
+    if (m_opts.preset == "perframe") {  // no atlas model: see step_perframe()
         m_perframe = m_data->input.clone();
         m_perframe_done.assign(m_data->frames, false);
+        return;
     }
+    build_model();
+}
+
+void FitEngine::build_model() {
+    bool on = m_opts.layer_radius;
+    if (const char* e = std::getenv("REFOCUS_LAYER_RADIUS")) on = std::atoi(e) != 0;  // A/B hook
+    if (on) split_radius_by_layer(*m_data);
+    else m_data->radius_fg = m_data->radius_bg = torch::Tensor();
+    m_model = make_model(m_opts.preset, *m_data, m_opts.seed);
+    m_pad = m_model->max_pad();
+    if (m_pad > 0) {
+        auto padded = [&](const torch::Tensor& r) {
+            return F::pad(r.unsqueeze(1), F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
+                .squeeze(1);
+        };
+        m_radius_pad = padded(m_data->radius);
+        m_radius_fg_pad = padded(m_data->layer_radius(true));
+        m_radius_bg_pad = padded(m_data->layer_radius(false));
+    }
+    make_optimizer();
 }
 
 FitEngine::~FitEngine() = default;
@@ -380,7 +382,7 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
                         {"height", m_data->height},
                         {"width", m_data->width},
                         {"two_layers", m_data->has_subject},
-                        {"subject_track", m_data->legacy_subject_track ? "centroid" : "flow"},
+                        {"subject_track", m_data->legacy_subject_track ? "centroid" : m_data->legacy_track_gaps ? "flow" : "flow-v2"},
                         {"step", m_step},
                         {"elapsed_s", m_elapsed},
                         {"seed", m_opts.seed},
@@ -438,11 +440,17 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     if (m_model) {
         // A checkpoint of an earlier build placed the subject's atlas on its masks' centroids:
         // the model is rebuilt that way, so that its atlases and mappings mean what they meant.
-        const bool legacy = m_data->has_subject && j.value("subject_track", std::string("centroid")) == "centroid";
-        if (legacy != m_data->legacy_subject_track) {
+        // "flow" (eighth session) chained the subject's flow over the masks as stored; "flow-v2"
+        // (ninth) cleans the masks along the track first (clean_subject_masks) and steps over a
+        // missing mask at the previous step's pace.
+        const std::string kind = j.value("subject_track", std::string("centroid"));
+        const bool legacy = m_data->has_subject && kind == "centroid";
+        const bool legacy_gaps = m_data->has_subject && kind != "flow-v2";
+        if (legacy != m_data->legacy_subject_track || legacy_gaps != m_data->legacy_track_gaps) {
             m_data->legacy_subject_track = legacy;
-            m_model = make_model(m_opts.preset, *m_data, m_opts.seed);
-            make_optimizer();
+            m_data->legacy_track_gaps = legacy_gaps;
+            if (legacy_gaps && m_data->mask_as_stored.defined()) m_data->mask = m_data->mask_as_stored;
+            build_model();
         }
         std::map<std::string, torch::Tensor> s;
         for (auto& [name, t] : m_model->state()) {

@@ -109,6 +109,9 @@ private:
     torch::Tensor robust_target(const torch::Tensor& rb, const torch::Tensor& target,
                                 const std::vector<int64_t>& frames);
     std::vector<int64_t> next_batch();
+    // The model of the preset on the data (each layer's radius split first), its padded radius
+    // maps and its optimiser; again when a checkpoint asks for an earlier build's geometry.
+    void build_model();
     void make_optimizer();
     double budget_fraction() const;
     void step_perframe();

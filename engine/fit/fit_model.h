@@ -31,6 +31,10 @@ struct FitData {
     // The subject's track as builds before the eighth session made it (mask centroids), for
     // their checkpoints (FitEngine::load_checkpoint sets it); new fits chain the flow.
     bool legacy_subject_track = false;
+    // As the eighth session's builds: the masks as stored (not cleaned along the track) and a
+    // frame without a mask stepped by the masks' centroids (FitEngine::load_checkpoint sets it).
+    bool legacy_track_gaps = false;
+    torch::Tensor mask_as_stored;  // [T,1,H,W] the automatic masks before clean_subject_masks
 
     const torch::Tensor& layer_radius(bool foreground) const {
         const torch::Tensor& r = foreground ? radius_fg : radius_bg;

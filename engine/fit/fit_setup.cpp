@@ -10,6 +10,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "fit/atlas_geometry.h"
 #include "fit/stack_coc.h"
 #include "fit/tensor_image.h"
 #include "io/image_file.h"
@@ -52,7 +53,7 @@ std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps
 std::string stack_key(const Project& project, const FitData& d) {
     const std::string prep = read_text_file(fs::path(prepare_dir(project)) / "prepare.json");
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
-           (d.static_camera ? "/static" : "/moving") + "/v5";
+           (d.static_camera ? "/static" : "/moving") + "/v6";
 }
 
 fs::path stack_frame_path(const Project& project, int t) {
@@ -193,7 +194,13 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             log.info(line);
         }
     }
-    if (d->has_subject) d->mask = stack_images(prep.masks);
+    if (d->has_subject) {
+        d->mask = stack_images(prep.masks);
+        if (prep.mask_source == "auto") {  // a roto matte is kept as given
+            d->mask_as_stored = d->mask;
+            log.info(clean_subject_masks(*d));
+        }
+    }
     if (opts.coc_path.empty()) {
         if (d->frames >= 3 && !opts.single_image_coc) {
             const std::string key = stack_key(project, *d);
