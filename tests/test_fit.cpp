@@ -342,15 +342,30 @@ TEST_CASE("subject track follows the subject's flow where its masks lose part of
     CHECK(vy[3] > 22.0);
 }
 
+// A fast fit of tiny_two_layer_data(seed) with a budget of `iters`, stepped `steps` times and
+// checkpointed in the scratch directory `name`.
+struct SteppedFit {
+    std::shared_ptr<FitData> data;
+    FitOptions opts;
+    std::unique_ptr<FitEngine> engine;
+    fs::path ck;
+};
+SteppedFit stepped_fit(unsigned seed, int64_t iters, int steps, const std::string& name) {
+    SteppedFit f;
+    f.data = tiny_two_layer_data(seed);
+    f.opts.preset = "fast";
+    f.opts.iters = iters;
+    f.engine = std::make_unique<FitEngine>(f.data, f.opts);
+    for (int i = 0; i < steps; ++i) f.engine->step();
+    f.ck = scratch_dir(name);
+    f.engine->save_checkpoint(f.ck);
+    return f;
+}
+
 TEST_CASE("a checkpoint without the shared matte or the track's kind loads as the build that wrote it") {
-    auto data = tiny_two_layer_data(5);
-    FitOptions o;
-    o.preset = "fast";
-    o.iters = 4;
-    FitEngine a(data, o);
-    for (int i = 0; i < 2; ++i) a.step();
-    const fs::path ck = scratch_dir("fit_old_checkpoint");
-    a.save_checkpoint(ck);
+    SteppedFit f = stepped_fit(5, 4, 2, "fit_old_checkpoint");
+    auto& [data, o, engine, ck] = f;
+    FitEngine& a = *engine;
     // As an earlier build wrote it: no "subject_track" field.
     auto j = nlohmann::json::parse(read_text_file(ck / "checkpoint.json"));
     CHECK(j.at("subject_track") == "flow-v2");
@@ -467,14 +482,9 @@ TEST_CASE("each layer's radius: the subject's spreads past its silhouette, the w
 }
 
 TEST_CASE("a checkpoint keeps its atlases' geometry: a build that would place them otherwise renders what was trained") {
-    auto data = tiny_two_layer_data(7);
-    FitOptions o;
-    o.preset = "fast";
-    o.iters = 6;
-    FitEngine a(data, o);
-    for (int i = 0; i < 3; ++i) a.step();
-    const fs::path ck = scratch_dir("fit_geometry_checkpoint");
-    a.save_checkpoint(ck);
+    SteppedFit f = stepped_fit(7, 6, 3, "fit_geometry_checkpoint");
+    auto& [data, o, engine, ck] = f;
+    FitEngine& a = *engine;
     // The same clip whose masks now say the subject is wider and lower: this build computes
     // another foreground box and track for it.
     auto data_b = std::make_shared<FitData>(*data);
