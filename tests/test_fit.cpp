@@ -12,6 +12,7 @@
 #include "metrics/metrics.h"
 #include "fit/atlas_geometry.h"
 #include "fit/fit_engine.h"
+#include "fit/fit_session.h"
 #include "fit/fit_setup.h"
 #include "fit/stack_coc.h"
 #include "project/project.h"
@@ -389,6 +390,56 @@ TEST_CASE("a checkpoint without the shared matte or the track's kind loads as th
                                     .mode(torch::kBilinear)
                                     .align_corners(false)));
     CHECK(torch::allclose(alpha, want, 1e-5, 1e-5));
+}
+
+TEST_CASE("the fit's kernel: new fits take the pillbox, projects and checkpoints of earlier builds keep the disk") {
+    // A checkpoint names its kernel; one without the field was fitted with the paper's disk.
+    SteppedFit f = stepped_fit(6, 4, 2, "fit_kernel_checkpoint");
+    auto j = nlohmann::json::parse(read_text_file(f.ck / "checkpoint.json"));
+    CHECK(j.at("kernel") == "disk");  // tiny_two_layer_data keeps FitData's default
+    j.erase("kernel");
+    write_file_atomic(f.ck / "checkpoint.json", j.dump());
+    {
+        FitEngine same(std::make_shared<FitData>(*f.data), f.opts);
+        CHECK_NOTHROW(same.load_checkpoint(f.ck));
+        CHECK(torch::equal(same.render_frame(1).sharp, f.engine->render_frame(1).sharp));
+    }
+    auto pillbox = std::make_shared<FitData>(*f.data);
+    pillbox->blur = fit_kernel_params("pillbox");
+    FitEngine other(pillbox, f.opts);
+    try {
+        other.load_checkpoint(f.ck);
+        FAIL("a disk checkpoint loaded into a pillbox fit");
+    } catch (const Error& e) {
+        const std::string m = e.what();
+        CHECK(m.find("checkpoint.json") != std::string::npos);
+        CHECK(m.find("'kernel' is \"disk\"") != std::string::npos);
+        CHECK(m.find("pillbox") != std::string::npos);
+    }
+    CHECK_THROWS_WITH_AS(fit_kernel_params("gauss"), doctest::Contains("unknown kernel 'gauss'"), Error);
+    CHECK(fit_kernel_params("pillbox").kernel == BlurKernel::Pillbox);
+    CHECK(fit_kernel_params("disk").kernel == BlurKernel::Disk);
+
+    // Settings: fresh ones take the pillbox; a project's "fit" section without a kernel (an
+    // earlier build's) reads as the disk; what is written is read back.
+    if (!std::getenv("REFOCUS_FIT_KERNEL")) CHECK(FitSettings{}.setup.kernel == "pillbox");
+    TinyClip c = make_tiny("fit_kernel_settings");
+    Project p = Project::load(c.project);
+    FitSettings s;
+    s.fit.iters = 3;
+    s.setup.kernel = "pillbox";
+    write_fit_settings(p, s, nullptr);
+    CHECK(read_fit_settings(Project::load(c.project)).setup.kernel == "pillbox");
+    auto pj = nlohmann::json::parse(read_text_file(p.project_file()));
+    pj.at("fit").erase("kernel");
+    write_file_atomic(p.project_file(), pj.dump());
+    CHECK(read_fit_settings(Project::load(c.project)).setup.kernel == "disk");
+    PrepareLog log;
+    FitSetupOptions so;
+    so.kernel = "disk";
+    CHECK(build_fit_data(Project::load(c.project), so, log)->blur.kernel == BlurKernel::Disk);
+    so.kernel = "pillbox";
+    CHECK(build_fit_data(Project::load(c.project), so, log)->blur.kernel == BlurKernel::Pillbox);
 }
 
 TEST_CASE("a reopened project rebuilds the model its fit trained: the masks are used as stored") {

@@ -46,7 +46,7 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         o.align_rounds = int(rounds);
         // The atlases reach past the frame by the widest blur support, so that edge pixels are
         // explained by the scene beyond the edge (FitModel::render_padded).
-        double pad = std::ceil(lens_blur_support(data.radius.max().item<double>(), LensBlurParams{}));
+        double pad = std::ceil(lens_blur_support(data.radius.max().item<double>(), data.blur));
         env("REFOCUS_FAST_PAD", pad);
         o.pad = int(std::clamp(pad, 0.0, 48.0));
         return std::make_unique<FastModel>(data, o);
@@ -151,7 +151,7 @@ torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& fra
         const int64_t t = frames[b];
         if (!L.fg.defined()) {
             auto r = pad ? m_radius_pad[t] : m_data->radius[t];
-            out.push_back(lens_blur(L.sharp[b], r, m_opts.blur));  // paper eq. 3
+            out.push_back(lens_blur(L.sharp[b], r, m_data->blur));  // paper eq. 3
             continue;
         }
         // Layered reblur L(α·F) + (1 − L(α))·L(B): α·F and α scatter with the subject's radius,
@@ -161,12 +161,12 @@ torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& fra
         auto rf = pad ? m_radius_fg_pad[t] : m_data->layer_radius(true)[t];
         auto rb = pad ? m_radius_bg_pad[t] : m_data->layer_radius(false)[t];
         if (m_data->radius_fg.defined()) {
-            auto blf = lens_blur(torch::cat({a * L.fg[b], a}, 0), rf, m_opts.blur);
-            auto blb = lens_blur(L.bg[b], rb, m_opts.blur);
+            auto blf = lens_blur(torch::cat({a * L.fg[b], a}, 0), rf, m_data->blur);
+            auto blb = lens_blur(L.bg[b], rb, m_data->blur);
             out.push_back(blf.narrow(0, 0, 3) + (1.0 - blf.narrow(0, 3, 1)) * blb);
             continue;
         }
-        auto bl = lens_blur(torch::cat({a * L.fg[b], a, L.bg[b]}, 0), rf, m_opts.blur);  // one 7-channel pass
+        auto bl = lens_blur(torch::cat({a * L.fg[b], a, L.bg[b]}, 0), rf, m_data->blur);  // one 7-channel pass
         out.push_back(bl.narrow(0, 0, 3) + (1.0 - bl.narrow(0, 3, 1)) * bl.narrow(0, 4, 3));
     }
     auto rb = torch::stack(out);
@@ -203,7 +203,7 @@ void FitEngine::step_perframe() {
     // The baseline: non-blind MAP deconvolution with a TV prior, one frame per step.
     const int64_t t = m_step;
     TvDeconvOptions o;
-    o.blur = m_opts.blur;
+    o.blur = m_data->blur;
     // 50 ADMM iterations: ~0.3 dB short of convergence on textured frames but ~5x faster
     // (converged runs take 5–9 min per 320x180 frame on 2 cores; see tests/test_perframe.cpp).
     o.iterations = 50;
@@ -340,6 +340,9 @@ void FitEngine::apply_fallback(Layers& L, int t, const torch::Tensor& model_shar
 // ---------------------------------------------------------------- checkpoints
 namespace {
 constexpr int kCheckpointVersion = 1;
+const char* kernel_name(const LensBlurParams& p) {
+    return p.kernel == BlurKernel::Pillbox ? "pillbox" : p.kernel == BlurKernel::Disk ? "disk" : "gaussian";
+}
 }
 
 bool FitEngine::has_checkpoint(const fs::path& dir) { return fs::exists(dir / "checkpoint.json"); }
@@ -383,6 +386,7 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
                         {"width", m_data->width},
                         {"two_layers", m_data->has_subject},
                         {"subject_track", m_data->legacy_subject_track ? "centroid" : m_data->legacy_track_gaps ? "flow" : "flow-v2"},
+                        {"kernel", kernel_name(m_data->blur)},
                         {"step", m_step},
                         {"elapsed_s", m_elapsed},
                         {"seed", m_opts.seed},
@@ -429,6 +433,10 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     expect("frames", m_data->frames);
     expect("height", m_data->height);
     expect("width", m_data->width);
+    // The radius and the reblur are in the kernel's terms (checkpoints before the tenth session:
+    // the paper's disk; the project's fit settings say which kernel to set the data up with).
+    if (!j.contains("kernel")) j["kernel"] = "disk";
+    expect("kernel", kernel_name(m_data->blur));
     const fs::path pt = dir / j.value("tensors", std::string());
     torch::serialize::InputArchive ar;
     try {

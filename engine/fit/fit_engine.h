@@ -29,7 +29,6 @@ struct FitOptions {
     double w_reco = 1.0;           // λ1 of paper eq. 4 (others live in the models)
     double ms_ssim_share = 0.84;   // L_reco = 0.84·(1 − MS-SSIM) + 0.16·L1 (Zhao et al. 2016)
     double checkpoint_seconds = 60.0;
-    LensBlurParams blur;           // the reblur kernel: paper's disk, β = 2
     // Robust reconstruction (IRLS, Geman-McClure weights): pixels whose reblur residual stays
     // far above their frame's typical residual — what the model cannot explain (an occlusion
     // edge fitted as one layer, a mask that misses the subject) — stop pulling on the atlases.

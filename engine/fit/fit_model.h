@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "util/fs.h"
+#include "ops/lens_blur.h"
 
 namespace refocus {
 
@@ -22,6 +23,9 @@ struct FitData {
     // Each layer's own radius with two layers (split_radius_by_layer, stack_coc.h): the subject's
     // beyond its silhouette, the wall's behind the subject. Undefined: `radius` for both.
     torch::Tensor radius_fg, radius_bg;  // [T,H,W]
+    // The lens blur layer's kernel: the one the radii are measured in (the focal-stack estimate
+    // matches blurs of this kernel; a given map is converted to it) and the reblur uses.
+    LensBlurParams blur;
     torch::Tensor mask;       // [T,1,H,W] foreground in [0,1]; undefined: one layer
     torch::Tensor to_ref;     // [T,3,3] float64 homography frame t → reference frame
     torch::Tensor flow_fwd;   // [T-1,2,H,W] flow t → t+1, px (prepare/flow.h); may be undefined

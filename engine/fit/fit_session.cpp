@@ -32,6 +32,9 @@ FitSettings read_fit_settings(const Project& p) {
         s.fit.batch = f.value("batch", s.fit.batch);
         s.setup.coc_path = f.value("coc", std::string());
         s.setup.mask_path = f.value("mask", std::string());
+        // Projects fitted before the tenth session carry no kernel: they were fitted with the
+        // paper's disk, and keep it (their checkpoints' atlases and radii are in its terms).
+        s.setup.kernel = f.value("kernel", std::string("disk"));
     } catch (const json::exception& e) {
         throw Error(file_error(label, std::string("malformed 'fit' section: ") + e.what()));
     }
@@ -49,7 +52,8 @@ void write_fit_settings(Project& p, const FitSettings& s, const FitSnapshot* sna
     };
     json f = {{"preset", s.fit.preset}, {"seed", s.fit.seed},     {"minutes", s.fit.minutes},
               {"iters", s.fit.iters},   {"batch", s.fit.batch},   {"coc", rel(s.setup.coc_path)},
-              {"mask", rel(s.setup.mask_path)}, {"checkpoint", "fit/checkpoint.json"}};
+              {"mask", rel(s.setup.mask_path)}, {"kernel", s.setup.kernel},
+              {"checkpoint", "fit/checkpoint.json"}};
     if (snap)
         f["status"] = {{"state", snap->status},
                        {"step", snap->step},

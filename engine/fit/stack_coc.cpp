@@ -89,7 +89,7 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
     for (double r = 0; r <= o.rmax + 1e-9; r += o.rstep) radii.push_back(r);
     const int64_t K = radii.size();
     std::vector<torch::Tensor> out;
-    LensBlurParams bp;
+    const LensBlurParams& bp = d.blur;
     for (int64_t t = 0; t < T; ++t) {
         auto aif_t = warp(aif.unsqueeze(0), to_canvas[t], H, W)[0].contiguous();
         // Pixels whose matching window reads canvas the composite does not cover are not measured.

@@ -182,19 +182,22 @@ void FitWorker::start(const FitSettings& settings, bool resume) {
     set_state(State::Preparing);
     post("start fit", [this, settings, resume](FitEngine*, const Project&) {
         if (!m_project) throw Error("no project is open");
-        const bool same_setup = m_engine && settings.setup.coc_path == m_settings.setup.coc_path &&
-                                settings.setup.mask_path == m_settings.setup.mask_path;
+        const fs::path dir = fit_dir(*m_project);
+        const bool can_resume = resume && FitEngine::has_checkpoint(dir);
+        FitSettings s = settings;
+        // A fit from scratch takes this build's kernel; a resumed one keeps its checkpoint's.
+        if (!can_resume) s.setup.kernel = default_fit_kernel();
+        const bool same_setup = m_engine && s.setup.coc_path == m_settings.setup.coc_path &&
+                                s.setup.mask_path == m_settings.setup.mask_path &&
+                                s.setup.kernel == m_settings.setup.kernel;
         std::shared_ptr<FitData> data;
         set_state(State::Preparing);
         if (same_setup) {
             data = std::make_shared<FitData>(m_engine->data());
         } else {
             PrepareLog log([this](const std::string& l) { add_log(l); });
-            data = build_fit_data(*m_project, settings.setup, log);
+            data = build_fit_data(*m_project, s.setup, log);
         }
-        FitSettings s = settings;
-        const fs::path dir = fit_dir(*m_project);
-        const bool can_resume = resume && FitEngine::has_checkpoint(dir);
         std::unique_ptr<FitEngine> engine;
         if (can_resume) {
             // The budget counts from where the checkpoint stopped.
