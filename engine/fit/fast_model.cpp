@@ -12,7 +12,6 @@
 #include "fit/losses.h"
 #include "ops/lens_blur.h"
 
-#include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 #include "util/error.h"
 
@@ -141,21 +140,6 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             cv::Mat tmpl = grey(m_data.input[t]), moving = grey(blurred);
             auto rmask = (region[t][0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
             cv::Mat mask(int(H), int(W), CV_8U, rmask.data_ptr<uint8_t>());
-            // Only where the render can match: away from the region's edge by the frame's widest
-            // blur, which there mixes in what the region leaves out (the subject's blurred edge
-            // over the wall, the wall through it). Synth hunt, true radius: the frames whose wall
-            // is blurred most sat 0.25-0.75 px off (frame 29, 10 px: 20.3 dB against 23.3 for its
-            // neighbours); 600 steps 23.69 -> 23.85 dB, frame 29 in place. REFOCUS_ALIGN_ERODE=0
-            // turns it off (A/B).
-            static const bool erode_on = !std::getenv("REFOCUS_ALIGN_ERODE") ||
-                                         std::string(std::getenv("REFOCUS_ALIGN_ERODE")) != "0";
-            if (erode_on) {
-                const int e = int(std::ceil(m_data.radius[t].max().item<double>())) + 2;
-                cv::Mat er;
-                cv::erode(mask, er, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * e + 1, 2 * e + 1)),
-                          cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(255));
-                if (cv::countNonZero(er) >= cv::countNonZero(mask) / 4) mask = er;
-            }
             if (cv::countNonZero(mask) < 64) {
                 mats.push_back(m);
                 continue;
@@ -304,7 +288,7 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     // Temporal smoothness (what the paper's flow loss buys): per-frame warps and mattes of
     // neighbouring frames should agree, or the output flickers where the atlas is consistent.
     const int64_t T = m_data.frames;
-    if (T > 1) {
+    if (T > 1 && m_opts.w_temporal > 0) {
         std::vector<int64_t> nb;
         for (int64_t f : frames) nb.push_back(f + 1 < T ? f + 1 : f - 1);
         auto nidx = torch::tensor(nb, torch::kLong);
