@@ -434,6 +434,10 @@ TEST_CASE("the fit's kernel: new fits take the pillbox, projects and checkpoints
     pj.at("fit").erase("kernel");
     write_file_atomic(p.project_file(), pj.dump());
     CHECK(read_fit_settings(Project::load(c.project)).setup.kernel == "disk");
+    pj.at("fit")["kernel"] = "bokeh";
+    write_file_atomic(p.project_file(), pj.dump());
+    CHECK_THROWS_WITH_AS(read_fit_settings(Project::load(c.project)),
+                         doctest::Contains("project.json: malformed 'fit' section: fit: unknown kernel 'bokeh'"), Error);
     PrepareLog log;
     FitSetupOptions so;
     so.kernel = "disk";

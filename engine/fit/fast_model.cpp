@@ -285,8 +285,8 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     }
     total = total + m_opts.w_warp * warp_reg;
     terms["warp"] = warp_reg.item<double>();
-    // Temporal smoothness (what the paper's flow loss buys): per-frame warps and mattes of
-    // neighbouring frames should agree, or the output flickers where the atlas is consistent.
+    // Temporal smoothness of the per-frame residuals (off by default: FastModelOptions::w_temporal
+    // has the measurements; the shared atlases already keep the frames consistent).
     const int64_t T = m_data.frames;
     if (T > 1 && m_opts.w_temporal > 0) {
         std::vector<int64_t> nb;

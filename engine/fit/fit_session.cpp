@@ -38,6 +38,11 @@ FitSettings read_fit_settings(const Project& p) {
     } catch (const json::exception& e) {
         throw Error(file_error(label, std::string("malformed 'fit' section: ") + e.what()));
     }
+    try {
+        fit_kernel_params(s.setup.kernel);
+    } catch (const Error& e) {
+        throw Error(file_error(label, std::string("malformed 'fit' section: ") + e.what()));
+    }
     // Relative inputs are stored relative to the project folder.
     for (std::string* path : {&s.setup.coc_path, &s.setup.mask_path})
         if (!path->empty() && fs::path(*path).is_relative()) *path = (p.dir / *path).string();

@@ -147,6 +147,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     d->width = project.width;
     d->input = stack_images(frames);
     d->blur = fit_kernel_params(opts.kernel);
+    log.info("kernel: " + opts.kernel + (opts.kernel == "pillbox" ? " (a uniform disk, seed 001 eq. 1.13)"
+                                                                   : " (the paper's eq. 2, beta = 2)"));
     std::vector<Image> radius;
     if (!opts.coc_path.empty()) {
         radius = load_coc_maps(opts.coc_path, project.frames, project.width, project.height);
