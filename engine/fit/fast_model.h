@@ -26,9 +26,9 @@ struct FastModelOptions {
     // Neighbouring frames' residual warps and mattes agree. Off since the tenth session: the
     // residual corrects each frame's own homography error (hand shake, a blurred frame's weak
     // tracks), and pulling it toward the neighbours' kept those errors. Synth clips, 600 steps,
-    // PSNR / tPSNR at 0.5 → 0.1 → 0.03 → 0: hunt, true radius, 23.85/26.83 → 24.05/26.88 →
-    // 24.15/26.94 → 24.39/27.48; rack, estimated, 25.11/26.04 → 25.43/26.21 → 25.56/26.32 →
-    // 25.71/26.81 (flicker falls with it).
+    // PSNR / tPSNR at 0.5 → 0.1 → 0.03 → 0: hunt, true radius, 23.69/26.64 → 23.92/26.72 →
+    // 24.08/26.83 → 24.39/27.48; rack, estimated, 25.09/26.27 → (0.03) 25.59/26.56 → 25.71/26.81;
+    // rack, true radius, 25.52/26.71 → (0.1) 25.85/26.81 (flicker falls with it).
     double w_temporal = 0.0;
     double w_bootstrap = 0.5;   // alpha to mask, halves every `bootstrap_halflife` steps
     int bootstrap_halflife = 400;
