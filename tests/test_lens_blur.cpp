@@ -14,6 +14,7 @@
 
 using refocus::BlurKernel;
 using refocus::LensBlurParams;
+using refocus::coc_second_moment;
 using refocus::kernel_radius_for_coc;
 using refocus::lens_blur;
 
@@ -379,8 +380,13 @@ TEST_CASE("NaN/Inf and negative radii are reported, not spread") {
 
 TEST_CASE("a circle of confusion becomes the kernel radius that spreads light as far") {
     // The operator's own point spread function at kernel_radius_for_coc(c) has the second
-    // moment of a uniform disk of radius c (c²/2), for the paper's disk and for the Gaussian.
-    for (BlurKernel kernel : {BlurKernel::Disk, BlurKernel::Gaussian}) {
+    // moment of a uniform disk of radius c imaged onto the pixel grid (c²/2 plus the bilinear
+    // tent's share, 1/3 px² once the disk spans pixels), for every kernel.
+    CHECK(coc_second_moment(0.0) == 0.0);
+    // Inside one pixel (|a| < 1) each axis adds |a|: twice E|a| = 4c/3π over the disk.
+    CHECK(coc_second_moment(0.2) == doctest::Approx(8 * 0.2 / (3 * M_PI)).epsilon(0.01));
+    for (double c : {3.0, 7.0, 12.0}) CHECK(coc_second_moment(c) == doctest::Approx(0.5 * c * c + 1.0 / 3.0).epsilon(0.002));
+    for (BlurKernel kernel : {BlurKernel::Disk, BlurKernel::Pillbox, BlurKernel::Gaussian}) {
         LensBlurParams p;
         p.kernel = kernel;
         double last = 0;
@@ -395,7 +401,7 @@ TEST_CASE("a circle of confusion becomes the kernel radius that spreads light as
             auto ys = torch::arange(n, torch::kFloat64) - mid;
             auto rho2 = ys.view({n, 1}).pow(2) + ys.view({1, n}).pow(2);
             const double m2 = (psf * rho2).sum().item<double>() / psf.sum().item<double>();
-            CHECK(m2 == doctest::Approx(0.5 * c * c).epsilon(0.02));
+            CHECK(m2 == doctest::Approx(coc_second_moment(c)).epsilon(0.02));
         }
     }
     CHECK(kernel_radius_for_coc(0.0) == 0.0);

@@ -58,6 +58,11 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
 
 FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     : m_data(std::move(data)), m_opts(opts), m_rng(opts.seed) {
+    // A/B hooks for the benches (README, "Measured"): REFOCUS_ROBUST_C, REFOCUS_FALLBACK_K,
+    // REFOCUS_MS_SSIM_SHARE.
+    if (const char* e = std::getenv("REFOCUS_ROBUST_C")) m_opts.robust_c = std::atof(e);
+    if (const char* e = std::getenv("REFOCUS_FALLBACK_K")) m_opts.fallback_k = std::atof(e);
+    if (const char* e = std::getenv("REFOCUS_MS_SSIM_SHARE")) m_opts.ms_ssim_share = std::atof(e);
     if (!m_data || m_data->frames <= 0) throw Error("fit: the clip has no frames");
     if (m_opts.minutes <= 0 && m_opts.iters <= 0)
         throw Error("fit: give a budget (--minutes M or --iters N)");

@@ -719,12 +719,30 @@ double lens_blur_second_moment(double r, const LensBlurParams& p) {
     return sum > 0 ? s * m2 / sum : 0;
 }
 
+double coc_second_moment(double coc) {
+    if (!(coc > 0)) return 0;
+    // Light through the aperture point a lands between pixel centres and is read there by
+    // bilinear interpolation, spread over the two nearest pixels of each axis with weights
+    // 1 − f and f (f = a − ⌊a⌋): E[ρ²] per axis is a² + f(1 − f). Over the uniform disk, by
+    // symmetry twice the one-axis mean under the chord density sqrt(c² − x²): c²/2 plus up to 1/3
+    // (the tent's own spread; 0 for a disk that stays inside one pixel).
+    const int n = 2000;
+    double sum = 0, wsum = 0;
+    for (int i = 0; i < n; ++i) {
+        const double x = (-1.0 + (2.0 * i + 1.0) / n) * coc;
+        const double w = std::sqrt(std::max(0.0, coc * coc - x * x));
+        const double f = x - std::floor(x);
+        sum += w * (x * x + f * (1.0 - f));
+        wsum += w;
+    }
+    return 2.0 * sum / wsum;
+}
+
 double kernel_radius_for_coc(double coc, const LensBlurParams& p) {
     if (!(coc > 0)) return 0;
-    // A uniform disk of radius c spreads light with E[ρ²] = c²/2. The kernel's moment grows
-    // with r; bisect on [0, c + 2] (every kernel here is at least as wide as its radius's disk
-    // up to its 1-3 px soft edge).
-    const double target = 0.5 * coc * coc;
+    // The kernel's moment grows with r; bisect on [0, c + 2] (every kernel here is at least as
+    // wide as its radius's disk up to its 1-3 px soft edge).
+    const double target = coc_second_moment(coc);
     double lo = 0, hi = coc + 2;
     if (lens_blur_second_moment(hi, p) < target) return hi;
     for (int i = 0; i < 40; ++i) {
