@@ -124,7 +124,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     if (!d.static_camera || static_align) {
         const auto before = m_bg.to_atlas.clone();
         refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false,
-                         d.static_camera ? 2.0 : 4.0);
+                         d.static_camera ? 2.0 : 4.0, d.static_camera);
         // Corrections within ECC's noise on a locked-off camera (synth tripod: ≤ 0.12 px) are
         // dropped: the identity keeps its frames from flickering (tPSNR 69 against 50 with them).
         if (d.static_camera &&
@@ -135,7 +135,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
 }
 
 void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                                 bool affine, double max_shift) {
+                                 bool affine, double max_shift, bool static_camera) {
     const int64_t T = m_data.frames, H = m_data.height, W = m_data.width;
     auto grey = [&](const torch::Tensor& rgb) {  // [3,H,W] linear → sRGB luma, CV_32F
         auto l = srgb_encode(rgb);
@@ -184,6 +184,21 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             if (std::getenv("REFOCUS_DEBUG_ALIGN"))
                 std::fprintf(stderr, "align round %d frame %lld: %s, corner shift %.2f px\n", round,
                              (long long)t, ok ? "ok" : "failed", worst);
+            // A camera judged static moves only by hand shake: the translation is kept where the
+            // frame then matches the reblurred atlas clearly better and well (ECC coefficient,
+            // unsmoothed), not where noise or something in one frame only (a flash, a passer-by)
+            // pulled it.
+            double rho0 = 0, rho1 = 0;
+            if (ok && static_camera) {
+                cv::Mat warped;
+                cv::warpAffine(moving, warped, warp, moving.size(), cv::INTER_LINEAR + cv::WARP_INVERSE_MAP,
+                               cv::BORDER_REPLICATE);
+                rho0 = cv::computeECC(tmpl, moving, mask);
+                rho1 = cv::computeECC(tmpl, warped, mask);
+                ok = rho1 > 0.9 && rho1 > rho0 + 0.002;
+            }
+            if (std::getenv("REFOCUS_DEBUG_ALIGN") && static_camera)
+                std::fprintf(stderr, "  static frame %lld: ECC coefficient %.4f -> %.4f\n", (long long)t, rho0, rho1);
             mats.push_back(ok && worst < max_shift ? torch::matmul(m, w) : m);
         }
         a.to_atlas = torch::stack(mats).to(torch::kFloat32);

@@ -77,7 +77,7 @@ private:
     // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp
     // atlas shifted by a pixel scores worse than the blurred input.
     void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                          bool affine, double max_shift);
+                          bool affine, double max_shift, bool static_camera = false);
     // Checkpoints hold each atlas's geometry (its box and per-frame mapping) beside its texels:
     // a reopened project keeps what its fit trained, even when a later build would place the
     // atlas differently. A state without it (earlier builds) keeps the geometry just computed.
