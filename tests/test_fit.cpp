@@ -666,3 +666,110 @@ TEST_CASE("a static camera's hand shake is found; a locked-off camera keeps the 
         CHECK(A[0][0][1].item<double>() == 0.0);
     }
 }
+
+namespace {
+// A pan over a texture with detail up to the frame's Nyquist limit, each frame box-filtered
+// from a 4x render (a sensor integrates over its pixel): frame t shows the texture moved by
+// `pan` px per frame, at a new sub-pixel phase each time. Returns the data and the sharp frames.
+std::pair<std::shared_ptr<FitData>, torch::Tensor> pan_over_detail(int64_t T, double pan, double radius) {
+    namespace F = torch::nn::functional;
+    const int64_t H = 40, W = 56, S = 4, M = 24;  // M: texture margin, px
+    torch::manual_seed(11);
+    // Texture at 4x: random 1.5 px cells, nearest-neighbour (hard edges, as glyphs and checkers).
+    auto cells = torch::rand({1, 3, (H + 2 * M) * 2 / 3, (W + 2 * M) * 2 / 3});
+    auto tex = F::interpolate(cells, F::InterpolateFuncOptions()
+                                         .size(std::vector<int64_t>{(H + 2 * M) * S, (W + 2 * M) * S})
+                                         .mode(torch::kNearest));
+    auto d = std::make_shared<FitData>();
+    d->frames = T, d->height = H, d->width = W;
+    d->blur.kernel = BlurKernel::Pillbox;
+    std::vector<torch::Tensor> sharp, in, hs;
+    for (int64_t t = 0; t < T; ++t) {
+        const double dx = pan * t;  // frame pixel x shows the texture at x + M + dx
+        const int64_t ox = int64_t(std::floor(dx * S)), oy = M * S;
+        auto crop = tex.narrow(2, oy, H * S).narrow(3, M * S + ox, W * S);
+        auto f = F::avg_pool2d(crop, F::AvgPool2dFuncOptions(S))[0];  // exact for dx on the 1/4 grid
+        sharp.push_back(f);
+        in.push_back(lens_blur(f.contiguous(), torch::full({H, W}, float(radius)), d->blur));
+        hs.push_back(translation(double(ox) / S, 0.0));  // frame t → frame 0's coordinates
+    }
+    d->input = torch::stack(in);
+    d->radius = torch::full({T, H, W}, float(radius));
+    d->to_ref = torch::stack(hs).to(torch::kFloat64);
+    d->static_camera = false;
+    return {d, torch::stack(sharp)};
+}
+
+double psnr_of(const torch::Tensor& a, const torch::Tensor& b) {
+    return 10 * std::log10(1.0 / (a - b).pow(2).mean().item<double>());
+}
+}  // namespace
+
+TEST_CASE("a moving camera fits a 2x atlas: detail seen at many sub-pixel phases is resolved; checkpoints keep the resolution") {
+    auto [d, sharp] = pan_over_detail(8, 1.25, 0.4);
+    // The decision: a moving camera with the clip in focus takes 2x; a static camera, or a clip
+    // that nothing shows in focus, stays at the frame's resolution.
+    CHECK(choose_atlas_scale(*d).find("2x") != std::string::npos);
+    CHECK(d->atlas_scale == 2);
+    {
+        FitData s = *d;
+        s.static_camera = true;
+        choose_atlas_scale(s);
+        CHECK(s.atlas_scale == 1);
+        s = *d;
+        s.radius = torch::full_like(d->radius, 4.0f);
+        CHECK(choose_atlas_scale(s).find("1x") != std::string::npos);
+        CHECK(s.atlas_scale == 1);
+    }
+    // Texels sit on the frame's pixel centres: the initial (fused) atlas renders each frame back
+    // in place, at 2x as closely as at 1x.
+    auto fused_err = [&](double scale) {
+        FastModelOptions o;
+        o.atlas_scale = scale;
+        o.align_rounds = 0;
+        FastModel m(*d, o);
+        torch::NoGradGuard g;
+        auto r = m.render({0, 3, 7}).sharp;
+        return psnr_of(r, d->input.index_select(0, torch::tensor({0, 3, 7})));
+    };
+    const double p1 = fused_err(1), p2 = fused_err(2);
+    MESSAGE("fused atlas rendered back: 1x " << p1 << " dB, 2x " << p2 << " dB");
+    CHECK(p2 > p1 - 0.5);
+    CHECK(p2 > 28.0);
+    // Fitted: the 2x atlas reproduces the sharp frames better.
+    auto fit = [&](double scale, const fs::path& ck) {
+        auto data = std::make_shared<FitData>(*d);
+        data->atlas_scale = scale;
+        FitOptions o;
+        o.preset = "fast";
+        o.iters = 200;
+        FitEngine e(data, o);
+        while (!e.done()) e.step();
+        std::vector<torch::Tensor> out;
+        for (int t = 0; t < data->frames; ++t) out.push_back(e.render_frame(t).sharp[0]);
+        if (!ck.empty()) e.save_checkpoint(ck);
+        return psnr_of(torch::stack(out).clamp(0, 1), sharp);
+    };
+    const fs::path ck = scratch_dir("fit_atlas_scale");
+    const double f1 = fit(1, {}), f2 = fit(2, ck);
+    MESSAGE("fitted, sharp PSNR: input " << psnr_of(d->input, sharp) << " dB, 1x " << f1 << ", 2x " << f2);
+    CHECK(f2 > f1 + 1.0);
+    // The checkpoint names its scale; a reopened project takes it whatever this build decides,
+    // and a checkpoint of an earlier build (no field) was 1x.
+    auto j = nlohmann::json::parse(read_text_file(ck / "checkpoint.json"));
+    CHECK(j.at("atlas_scale") == 2.0);
+    auto reopened = std::make_shared<FitData>(*d);
+    reopened->atlas_scale = 1;
+    FitOptions o;
+    o.preset = "fast";
+    o.iters = 200;
+    FitEngine e(reopened, o);
+    e.load_checkpoint(ck);
+    CHECK(e.data().atlas_scale == 2);
+    CHECK(e.model().atlas_bg().size(2) > 2 * d->width);
+    j.erase("atlas_scale");
+    write_file_atomic(ck / "checkpoint.json", j.dump());
+    FitEngine old(std::make_shared<FitData>(*d), o);  // this build decides 2x
+    old.load_checkpoint(ck);
+    CHECK(old.data().atlas_scale == 1);
+}

@@ -9,6 +9,9 @@
 //     sharp.
 //   Atlases: multi-resolution textures A = Σ_l up(T_l) (coarse-to-fine for free: a coarse level
 //     moves many atlas pixels at once), with total variation.
+//     Their finest level holds `atlas_scale` texels per frame pixel: 2 for a moving camera
+//     with the clip partly in focus (choose_atlas_scale, fit_setup.h), so that detail frames
+//     saw at different sub-pixel phases is resolved rather than lost to resampling.
 // Initialisation fuses the input frames into the atlases weighted toward the frames that saw
 // each atlas pixel sharpest (weight (r + ½)^−4), which is where multi-frame deblurring starts.
 #include "fit/fit_model.h"
@@ -35,6 +38,8 @@ struct FastModelOptions {
     double w_alpha_residual = 0.02;  // L1 on the per-frame alpha residual (logit)
     double alpha_shared_lr = 1.0;    // the shared matte's learning rate, times lr_alpha
     int align_rounds = 2;       // ECC refinement rounds at initialisation (0: off)
+    double atlas_scale = 1;     // atlas px per frame px (FitData::atlas_scale); TV and the
+                                // residual warps stay in frame px
     int pad = 0;                // px of scene the atlases hold beyond each frame edge (the
                                 // engine passes the largest blur support; FitModel::max_pad)
 };
@@ -59,6 +64,7 @@ public:
 private:
     struct Atlas {
         int64_t width = 0, height = 0;
+        double scale = 1;                   // atlas px per frame px
         double origin_x = 0, origin_y = 0;  // atlas pixel (0,0) in mapped coordinates
         std::vector<torch::Tensor> levels;  // [1,3,h_l,w_l], coarse → fine
         torch::Tensor to_atlas;             // [T,3,3] float32: frame pixel → atlas pixel
@@ -72,6 +78,7 @@ private:
     void init_levels(Atlas& a, const torch::Tensor& fused);
     torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight) const;  // sharpest-weighted
     void set_atlas(Atlas& a, const torch::Tensor& rgb);
+    static void rescale(Atlas& a, double s);
     // Refines each frame's mapping by ECC image alignment (Evangelidis & Psarakis 2008) of the
     // reblurred fused atlas against the input frame, inside `region` ([T,1,H,W] > 0.5), then
     // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp

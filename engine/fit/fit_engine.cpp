@@ -49,6 +49,7 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         double pad = std::ceil(lens_blur_support(data.radius.max().item<double>(), data.blur));
         env("REFOCUS_FAST_PAD", pad);
         o.pad = int(std::clamp(pad, 0.0, 48.0));
+        o.atlas_scale = data.atlas_scale;
         return std::make_unique<FastModel>(data, o);
     }
     if (preset == "paper") return std::make_unique<PaperModel>(data, PaperModelOptions{}, seed);
@@ -397,6 +398,7 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
                         {"two_layers", m_data->has_subject},
                         {"subject_track", m_data->legacy_subject_track ? "centroid" : m_data->legacy_track_gaps ? "flow" : "flow-v2"},
                         {"kernel", kernel_name(m_data->blur)},
+                        {"atlas_scale", m_data->atlas_scale},
                         {"step", m_step},
                         {"elapsed_s", m_elapsed},
                         {"seed", m_opts.seed},
@@ -464,7 +466,13 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
         const std::string kind = j.value("subject_track", std::string("centroid"));
         const bool legacy = m_data->has_subject && kind == "centroid";
         const bool legacy_gaps = m_data->has_subject && kind != "flow-v2";
-        if (legacy != m_data->legacy_subject_track || legacy_gaps != m_data->legacy_track_gaps) {
+        // The atlas resolution the fit trained (checkpoints before the twelfth session: 1x).
+        const double scale = j.value("atlas_scale", 1.0);
+        if (!(scale >= 1 && scale <= 4))
+            throw Error(file_error(jf.string(), "checkpoint atlas_scale " + j["atlas_scale"].dump() + " is out of range"));
+        if (legacy != m_data->legacy_subject_track || legacy_gaps != m_data->legacy_track_gaps ||
+            scale != m_data->atlas_scale) {
+            m_data->atlas_scale = scale;
             m_data->legacy_subject_track = legacy;
             m_data->legacy_track_gaps = legacy_gaps;
             if (legacy_gaps && m_data->mask_as_stored.defined()) m_data->mask = m_data->mask_as_stored;

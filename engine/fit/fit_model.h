@@ -32,6 +32,8 @@ struct FitData {
     torch::Tensor flow_valid; // [T-1,1,H,W] 1 where the flow is forward-backward consistent
     bool static_camera = true;
     bool has_subject = false;
+    // Atlas texels per frame pixel (choose_atlas_scale, fit_setup.h; a checkpoint keeps its own).
+    double atlas_scale = 1;
     // The subject's track as builds before the eighth session made it (mask centroids), for
     // their checkpoints (FitEngine::load_checkpoint sets it); new fits chain the flow.
     bool legacy_subject_track = false;

@@ -26,6 +26,10 @@ struct FitSetupOptions {
     std::string kernel = default_fit_kernel();
 };
 
+// Sets d.atlas_scale for the fast preset from the camera and how much of the clip is in focus
+// (2: a 2x atlas that resolves detail seen at many sub-pixel phases); returns the log line.
+// REFOCUS_FAST_ATLAS_SCALE overrides it (A/B hook).
+std::string choose_atlas_scale(FitData& d);
 
 std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOptions& opts,
                                         PrepareLog& log);
