@@ -309,6 +309,28 @@ TEST_CASE("project edits: save/load round trip, size check names the file, no fi
     CHECK(err.find("24x20") != std::string::npos);
     CHECK(err.find("30x20") != std::string::npos);
 
+    // A refit at twice (or half) the atlas resolution carries the edit over, resampled: the
+    // dab's centre stays at the same atlas coordinate, its opacity and colour with it.
+    {
+        ProjectEdits two = ProjectEdits::load(reloaded);
+        two.bg.set_base(grey_base(48, 40));
+        const Image& e2 = two.bg.edit();
+        REQUIRE(e2.width == 48);
+        REQUIRE(e2.height == 40);
+        const Image& e1 = ed.bg.edit();
+        // 1x texel (7, 9) covers 2x texels 14..15 x 18..19.
+        CHECK(e2.at(14, 18, 3) == doctest::Approx(e1.at(7, 9, 3)).epsilon(0.05));
+        CHECK(e2.at(15, 19, 0) == doctest::Approx(e1.at(7, 9, 0)).epsilon(0.01));
+        double s1 = 0, s2 = 0;  // the edit's coverage, in 1x texels
+        for (int y = 0; y < 20; ++y)
+            for (int x = 0; x < 24; ++x) s1 += e1.at(x, y, 3);
+        for (int y = 0; y < 40; ++y)
+            for (int x = 0; x < 48; ++x) s2 += e2.at(x, y, 3) / 4;
+        CHECK(s2 == doctest::Approx(s1).epsilon(0.02));
+        two.bg.set_base(grey_base(24, 20));  // and back down
+        CHECK(two.bg.edit().at(7, 9, 3) == doctest::Approx(e1.at(7, 9, 3)).epsilon(0.05));
+    }
+
     // Clearing removes the file and the listing.
     back.bg.clear();
     back.save(reloaded);

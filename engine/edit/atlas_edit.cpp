@@ -45,12 +45,35 @@ void AtlasEditor::check_size(int w, int h, const char* what) const {
         size_error(m_label, m_edit.width, m_edit.height, what, w, h);
 }
 
+namespace {
+// An edit carried to an atlas of twice or half its resolution over the same scene (a refit that
+// chose the other atlas scale, choose_atlas_scale): texel centres sit at the same atlas
+// coordinates in [-1, 1] at either size, so the straight-alpha layer is resampled premultiplied,
+// bilinearly up or by 2x2 means down.
+Image rescale_edit(const Image& e, int w, int h) {
+    auto t = image_to_tensor(e).unsqueeze(0);  // [1,4,H,W]
+    auto a = t.narrow(1, 3, 1);
+    auto pm = torch::cat({t.narrow(1, 0, 3) * a, a}, 1);
+    auto opts = F::InterpolateFuncOptions().size(std::vector<int64_t>{h, w});
+    pm = w > e.width ? F::interpolate(pm, opts.mode(torch::kBilinear).align_corners(false))
+                     : F::interpolate(pm, opts.mode(torch::kArea));
+    auto na = pm.narrow(1, 3, 1);
+    auto rgb = torch::where(na > 1e-6, pm.narrow(1, 0, 3) / na.clamp_min(1e-6), torch::zeros_like(pm.narrow(1, 0, 3)));
+    return tensor_to_image(torch::cat({rgb, na.clamp(0, 1)}, 1)[0].contiguous());
+}
+}  // namespace
+
 void AtlasEditor::set_base(const Image& base) {
     if (base.empty()) throw Error("atlas editor: empty base atlas");
     Image b = base.channels == 3 ? base : to_rgb(base);
     if (m_edit.empty() || ((b.width != m_edit.width || b.height != m_edit.height) && !has_edits())) {
         end_stroke();
         m_edit = Image(b.width, b.height, 4, 0.0f);
+        m_undo.clear(), m_redo.clear(), m_history_bytes = 0;
+    } else if ((b.width == 2 * m_edit.width && b.height == 2 * m_edit.height) ||
+               (2 * b.width == m_edit.width && 2 * b.height == m_edit.height)) {
+        end_stroke();
+        m_edit = rescale_edit(m_edit, b.width, b.height);
         m_undo.clear(), m_redo.clear(), m_history_bytes = 0;
     }
     check_size(b.width, b.height, "the fitted atlas");
