@@ -707,18 +707,22 @@ double psnr_of(const torch::Tensor& a, const torch::Tensor& b) {
 
 TEST_CASE("a moving camera fits a 2x atlas: detail seen at many sub-pixel phases is resolved; checkpoints keep the resolution") {
     auto [d, sharp] = pan_over_detail(8, 1.25, 0.4);
-    // The decision: a moving camera with the clip in focus takes 2x; a static camera, or a clip
-    // that nothing shows in focus, stays at the frame's resolution.
-    CHECK(choose_atlas_scale(*d).find("2x") != std::string::npos);
+    // The decision: a given radius, a moving camera and the clip in focus take 2x; an estimated
+    // radius, a static camera, or a clip that nothing shows in focus stay at the frame's
+    // resolution.
+    CHECK(choose_atlas_scale(*d, true).find("2x") != std::string::npos);
     CHECK(d->atlas_scale == 2);
     {
         FitData s = *d;
         s.static_camera = true;
-        choose_atlas_scale(s);
+        choose_atlas_scale(s, true);
         CHECK(s.atlas_scale == 1);
         s = *d;
         s.radius = torch::full_like(d->radius, 4.0f);
-        CHECK(choose_atlas_scale(s).find("1x") != std::string::npos);
+        CHECK(choose_atlas_scale(s, true).find("1x") != std::string::npos);
+        CHECK(s.atlas_scale == 1);
+        s = *d;  // an estimated radius: its errors would be fitted too
+        CHECK(choose_atlas_scale(s, false).find("estimated") != std::string::npos);
         CHECK(s.atlas_scale == 1);
     }
     // Texels sit on the frame's pixel centres: the initial (fused) atlas renders each frame back

@@ -89,7 +89,7 @@ void save_stack_radius(const Project& project, const torch::Tensor& radius, cons
 
 }  // namespace
 
-std::string choose_atlas_scale(FitData& d) {
+std::string choose_atlas_scale(FitData& d, bool radius_given) {
     // A 1x atlas resampled to a frame's sub-pixel position loses the in-focus detail the frame
     // held: fine texture sits above what a 1x grid carries when shifted (synth pan, the wall's
     // in-focus top rows: the input 35.3 dB, the fitted 1x atlas 29.9; the ground truth itself
@@ -99,13 +99,19 @@ std::string choose_atlas_scale(FitData& d) {
     // slower: synth tripod, 300 steps, 31.90 -> 30.79 dB), and what no frame saw in focus has no
     // detail to resolve. Synth, true radius, 600 steps, 1x -> 2x (TV in frame px): rack
     // 26.68 -> 27.73 dB, hunt 24.60 -> 24.93, pan 23.61 -> 24.15; the wall's in-focus top rows
-    // of pan 29.9 -> 35.0 (input 35.3).
+    // of pan 29.9 -> 35.0 (input 35.3). Super-resolution needs the blur right, though: with the
+    // radius estimated from the clip (relative to each point's sharpest view) the finer grid
+    // fits the estimate's errors, differently in each frame (rack, 600 steps: 25.71 -> 25.05 dB,
+    // tPSNR 26.8 -> 25.9, the reblur 34.4 -> 36.0 dB; hunt and rack at 5 min alike). So 2x is
+    // for radius maps given with --coc (a depth-derived or measured defocus).
     torch::NoGradGuard g;
     const double in_focus = (d.radius < 1.5).to(torch::kFloat32).mean().item<double>();
     const double texels = 4.0 * d.height * d.width;
     std::string why;
     d.atlas_scale = 1;
-    if (d.static_camera) {
+    if (!radius_given) {
+        why = "radius estimated from the clip: a finer atlas would fit its errors";
+    } else if (d.static_camera) {
         why = "static camera: each atlas pixel is seen at one sub-pixel phase";
     } else if (in_focus < 0.05) {
         why = "no frame shows much in focus (" + fmt2(100 * in_focus) + "% of pixels under 1.5 px)";
@@ -280,7 +286,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             log.info("radius: estimated per frame (edge reblur ratio, guided filter)");
         }
     }
-    log.info(choose_atlas_scale(*d));
+    log.info(choose_atlas_scale(*d, !opts.coc_path.empty()));
     log.info(std::string("fit: ") + (d->static_camera ? "static camera, no learned background warp"
                                                       : "moving camera, learned residual warp") +
              ", " + (d->has_subject ? "two layers (moving subject)" : "one layer (no moving subject)"));

@@ -26,10 +26,11 @@ struct FitSetupOptions {
     std::string kernel = default_fit_kernel();
 };
 
-// Sets d.atlas_scale for the fast preset from the camera and how much of the clip is in focus
-// (2: a 2x atlas that resolves detail seen at many sub-pixel phases); returns the log line.
-// REFOCUS_FAST_ATLAS_SCALE overrides it (A/B hook).
-std::string choose_atlas_scale(FitData& d);
+// Sets d.atlas_scale for the fast preset from the radius's source (given with --coc or
+// estimated), the camera and how much of the clip is in focus (2: a 2x atlas that resolves
+// detail seen at many sub-pixel phases); returns the log line. REFOCUS_FAST_ATLAS_SCALE
+// overrides it (A/B hook).
+std::string choose_atlas_scale(FitData& d, bool radius_given);
 
 std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOptions& opts,
                                         PrepareLog& log);
