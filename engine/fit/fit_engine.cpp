@@ -39,6 +39,11 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         env("REFOCUS_FAST_W_TEMPORAL", o.w_temporal);
         env("REFOCUS_FAST_W_ALPHA_RESIDUAL", o.w_alpha_residual);
         env("REFOCUS_FAST_ALPHA_SHARED_LR", o.alpha_shared_lr);
+        env("REFOCUS_FAST_LR_ALPHA", o.lr_alpha);
+        env("REFOCUS_FAST_W_BOOTSTRAP", o.w_bootstrap);
+        double halflife = o.bootstrap_halflife;
+        env("REFOCUS_FAST_BOOTSTRAP_HALFLIFE", halflife);
+        o.bootstrap_halflife = int(halflife);
         double cell = o.warp_cell_px, rounds = o.align_rounds;
         env("REFOCUS_FAST_WARP_CELL", cell);
         env("REFOCUS_FAST_ALIGN_ROUNDS", rounds);
