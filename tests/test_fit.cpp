@@ -537,6 +537,32 @@ TEST_CASE("each layer's radius: the subject's spreads past its silhouette, the w
     CHECK(d.layer_radius(true).data_ptr() == d.radius.data_ptr());
 }
 
+TEST_CASE("each layer's radius from a blob of a mask: the rim keeps the subject's radius, a missed part the wall's") {
+    // One frame 60x50: a 16x15 subject at radius 6 (rows 15-29, columns 20-35) in front of a wall
+    // whose radius ramps 1 -> 2.5 px left to right. Its automatic mask is a blob 3 px wider on
+    // top, left and right (wall pixels, the wall's radius) that misses its bottom 4 rows.
+    FitData d;
+    d.frames = 1, d.height = 50, d.width = 60;
+    d.has_subject = true;
+    auto ramp = (1.0 + torch::arange(60, torch::kFloat32) * 0.025).view({1, 1, 60}).expand({1, 50, 60});
+    d.radius = ramp.clone();
+    d.radius[0].narrow(0, 15, 15).narrow(1, 20, 16).fill_(6.0);
+    d.mask = torch::zeros({1, 1, 50, 60});
+    d.mask[0].narrow(1, 12, 14).narrow(2, 17, 23).fill_(1.0);
+    split_radius_by_layer(d);
+    REQUIRE(d.radius_fg.defined());
+    // The mask's rim holds the wall's radius; the subject's layer takes the subject's there.
+    CHECK(d.radius_fg[0][13][18].item<float>() == doctest::Approx(6.0).epsilon(0.02));
+    CHECK(d.radius_fg[0][20][38].item<float>() == doctest::Approx(6.0).epsilon(0.02));
+    CHECK(d.radius_fg[0][20][28].item<float>() == doctest::Approx(6.0).epsilon(0.02));
+    // The part the mask missed holds the subject's radius; the wall's layer keeps the wall's.
+    auto missed = d.radius_bg[0].narrow(0, 28, 2).narrow(1, 20, 16);
+    CHECK(missed.max().item<float>() < 2.6f);
+    CHECK(missed.min().item<float>() > 1.0f);
+    // Far from the subject the wall's map is as given.
+    CHECK(torch::allclose(d.radius_bg[0].narrow(0, 40, 10), ramp[0].narrow(0, 40, 10)));
+}
+
 TEST_CASE("a checkpoint keeps its atlases' geometry: a build that would place them otherwise renders what was trained") {
     SteppedFit f = stepped_fit(7, 6, 3, "fit_geometry_checkpoint");
     auto& [data, o, engine, ck] = f;

@@ -179,13 +179,37 @@ void split_radius_by_layer(FitData& d, int margin) {
     auto sure_fg = erode(fg, margin), sure_bg = erode(1.0 - fg, margin);
     std::vector<torch::Tensor> rf, rb;
     for (int64_t t = 0; t < d.frames; ++t) {
+        auto keep_fg = sure_fg[t].unsqueeze(0), keep_bg = sure_bg[t].unsqueeze(0);
+        // An automatic mask is a blob around a blurred subject (wider than the silhouette by
+        // about the blur, and missing a part here and there): the map inside it holds the wall's
+        // radius at its rim, and the wall's side of it the subject's radius where it missed a
+        // part. The subject's radius is read where the mask is surest (its core) and only
+        // values near it stay the subject's; the same values next to the mask leave the wall's.
+        // Synth clips, 600 steps, the masks as they are -> this: pan (true radius) 24.36 ->
+        // 24.92 dB (split by the true alpha: 24.89), rack 27.84 -> 28.74, hunt 25.05 -> 25.04;
+        // walkout 20.13 -> 20.15; estimated radius: rack 25.76 -> 25.96, hunt 22.39 -> 22.37.
+        const double area = fg[t].sum().item<double>();
+        const int k = std::max(margin, int(0.3 * std::sqrt(area / M_PI)));
+        auto core = erode(fg[t].unsqueeze(0), k);
+        if (core.sum().item<double>() < 1) core = keep_fg;
+        if (core.sum().item<double>() >= 1) {
+            const auto rt = r[t].unsqueeze(0);
+            const double r_core = rt.masked_select(core > 0.5).median().item<double>();
+            const double tol = std::max(1.0, 0.25 * r_core);
+            auto like_subject = ((rt - r_core).abs() <= tol).to(torch::kFloat32);
+            auto fg_kept = keep_fg * like_subject;
+            keep_fg = fg_kept.sum().item<double>() >= 1 ? fg_kept : core;
+            const int reach = std::max(margin, int(std::sqrt(area / M_PI)));
+            auto near = F::max_pool2d(fg[t].unsqueeze(0), F::MaxPool2dFuncOptions(2 * reach + 1).stride(1).padding(reach));
+            auto bg_kept = keep_bg * (1.0 - near * like_subject);
+            if (bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
+        }
         // A frame without a sure pixel of a layer keeps the visible surface's map for it.
         auto one = [&](const torch::Tensor& sure) {
-            auto s = sure[t].unsqueeze(0);
-            return s.sum().item<double>() > 0 ? fill_from(r[t].unsqueeze(0), s)[0][0] : d.radius[t];
+            return sure.sum().item<double>() > 0 ? fill_from(r[t].unsqueeze(0), sure)[0][0] : d.radius[t];
         };
-        rf.push_back(one(sure_fg));
-        rb.push_back(one(sure_bg));
+        rf.push_back(one(keep_fg));
+        rb.push_back(one(keep_bg));
     }
     d.radius_fg = torch::stack(rf).contiguous();
     d.radius_bg = torch::stack(rb).contiguous();
