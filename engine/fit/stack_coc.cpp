@@ -180,6 +180,7 @@ void split_radius_by_layer(FitData& d, int margin) {
     std::vector<torch::Tensor> rf, rb;
     for (int64_t t = 0; t < d.frames; ++t) {
         auto keep_fg = sure_fg[t].unsqueeze(0), keep_bg = sure_bg[t].unsqueeze(0);
+        torch::Tensor fg_region;  // where the subject's radius applies (undefined: everywhere)
         // An automatic mask is a blob around a blurred subject (wider than the silhouette by
         // about the blur, and missing a part here and there): the map inside it holds the wall's
         // radius at its rim, and the wall's side of it the subject's radius where it missed a
@@ -203,12 +204,19 @@ void split_radius_by_layer(FitData& d, int margin) {
             auto near = F::max_pool2d(fg[t].unsqueeze(0), F::MaxPool2dFuncOptions(2 * reach + 1).stride(1).padding(reach));
             auto bg_kept = keep_bg * (1.0 - near * like_subject);
             if (bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
+            // Far from the mask the subject's layer is transparent and its radius only costs
+            // time (the lens blur scatters every source pixel over its radius): there it takes
+            // the visible surface's. Synth pan, true radius, 10 min: 2771 steps (25.92 dB) with
+            // the subject's everywhere, 3209 (25.99) with this.
+            const int far = reach + int(std::ceil(r_core)) + 2;
+            fg_region = F::max_pool2d(fg[t].unsqueeze(0), F::MaxPool2dFuncOptions(2 * far + 1).stride(1).padding(far));
         }
         // A frame without a sure pixel of a layer keeps the visible surface's map for it.
         auto one = [&](const torch::Tensor& sure) {
             return sure.sum().item<double>() > 0 ? fill_from(r[t].unsqueeze(0), sure)[0][0] : d.radius[t];
         };
-        rf.push_back(one(keep_fg));
+        rf.push_back(fg_region.defined() ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), d.radius[t])
+                                         : one(keep_fg));
         rb.push_back(one(keep_bg));
     }
     d.radius_fg = torch::stack(rf).contiguous();
