@@ -7,6 +7,7 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <array>
 
 #include "io/clip.h"
 #include "metrics/metrics.h"
@@ -503,18 +504,29 @@ TEST_CASE("subject track: a subject walking away is followed in size as well") {
     for (double s : sc) CHECK(s == 1.0);
 }
 
+// Each layer's radius split (split_radius_by_layer) over a wall whose radius ramps from 1 px by
+// `slope` px per column (`ramp` receives it), with a subject of radius `r` in frame 0's box
+// `subject` and frame 0's mask in box `mask` (boxes: row, rows, column, columns).
+static FitData split_over_ramp(int frames, int height, int width, double slope,
+                               std::array<int, 4> subject, float r, std::array<int, 4> mask,
+                               torch::Tensor& ramp) {
+    FitData d;
+    d.frames = frames, d.height = height, d.width = width;
+    d.has_subject = true;
+    ramp = (1.0 + torch::arange(width, torch::kFloat32) * slope).view({1, 1, width}).expand({frames, height, width});
+    d.radius = ramp.clone();
+    d.radius[0].narrow(0, subject[0], subject[1]).narrow(1, subject[2], subject[3]).fill_(r);
+    d.mask = torch::zeros({frames, 1, height, width});
+    d.mask[0].narrow(1, mask[0], mask[1]).narrow(2, mask[2], mask[3]).fill_(1.0);
+    split_radius_by_layer(d);
+    return d;
+}
+
 TEST_CASE("each layer's radius: the subject's spreads past its silhouette, the wall's continues behind it") {
     // Two frames 40x30: a 12x10 subject at radius 5 in front of a wall whose radius ramps
     // 1 → 2.45 px left to right; frame 1 has no subject.
-    FitData d;
-    d.frames = 2, d.height = 30, d.width = 40;
-    d.has_subject = true;
-    auto ramp = (1.0 + torch::arange(40, torch::kFloat32) * 0.0375).view({1, 1, 40}).expand({2, 30, 40});
-    d.radius = ramp.clone();
-    d.mask = torch::zeros({2, 1, 30, 40});
-    d.mask[0].narrow(1, 10, 10).narrow(2, 14, 12).fill_(1.0);
-    d.radius[0].narrow(0, 10, 10).narrow(1, 14, 12).fill_(5.0);
-    split_radius_by_layer(d);
+    torch::Tensor ramp;
+    FitData d = split_over_ramp(2, 30, 40, 0.0375, {10, 10, 14, 12}, 5.0f, {10, 10, 14, 12}, ramp);
     REQUIRE(d.radius_fg.defined());
     REQUIRE(d.radius_bg.defined());
     // Where each layer is sure (2 px inside its own region) it keeps the map as given.
@@ -541,15 +553,8 @@ TEST_CASE("each layer's radius from a blob of a mask: the rim keeps the subject'
     // One frame 60x50: a 16x15 subject at radius 6 (rows 15-29, columns 20-35) in front of a wall
     // whose radius ramps 1 -> 2.5 px left to right. Its automatic mask is a blob 3 px wider on
     // top, left and right (wall pixels, the wall's radius) that misses its bottom 4 rows.
-    FitData d;
-    d.frames = 1, d.height = 50, d.width = 60;
-    d.has_subject = true;
-    auto ramp = (1.0 + torch::arange(60, torch::kFloat32) * 0.025).view({1, 1, 60}).expand({1, 50, 60});
-    d.radius = ramp.clone();
-    d.radius[0].narrow(0, 15, 15).narrow(1, 20, 16).fill_(6.0);
-    d.mask = torch::zeros({1, 1, 50, 60});
-    d.mask[0].narrow(1, 12, 14).narrow(2, 17, 23).fill_(1.0);
-    split_radius_by_layer(d);
+    torch::Tensor ramp;
+    FitData d = split_over_ramp(1, 50, 60, 0.025, {15, 15, 20, 16}, 6.0f, {12, 14, 17, 23}, ramp);
     REQUIRE(d.radius_fg.defined());
     // The mask's rim holds the wall's radius; the subject's layer takes the subject's there.
     CHECK(d.radius_fg[0][13][18].item<float>() == doctest::Approx(6.0).epsilon(0.02));
