@@ -16,6 +16,7 @@
 #include "fit/fit_engine.h"
 #include "fit/fit_session.h"
 #include "fit/fit_setup.h"
+#include "fit/losses.h"
 #include "fit/stack_coc.h"
 #include "project/project.h"
 #include "test_util.h"
@@ -807,4 +808,50 @@ TEST_CASE("a moving camera fits a 2x atlas: detail seen at many sub-pixel phases
     FitEngine old(std::make_shared<FitData>(*d), o);  // this build decides 2x
     old.load_checkpoint(ck);
     CHECK(old.data().atlas_scale == 1);
+}
+
+TEST_CASE("MS-SSIM loss: the fused Gaussian filter matches the tensor-op reference, value and gradient") {
+    torch::manual_seed(7);
+    SUBCASE("the filter: an impulse gives the 11x11 window, a constant stays, the adjoint is exact") {
+        auto x = torch::zeros({1, 1, 21, 23}, torch::kDouble);
+        x[0][0][10][11] = 1.0;
+        auto y = gauss_filter_valid(x);
+        REQUIRE(y.sizes() == torch::IntArrayRef({1, 1, 11, 13}));
+        CHECK(y.sum().item<double>() == doctest::Approx(1.0).epsilon(1e-12));
+        CHECK(torch::allclose(y, gauss_filter_valid_reference(x), 0, 1e-15));
+        const double g5 = y[0][0][5][6].item<double>(), g0 = y[0][0][0][1].item<double>();
+        CHECK(g5 > 0.07);  // the centre tap squared: (1 / Σ exp(−i²/4.5))²
+        CHECK(g0 == doctest::Approx(g5 * std::exp(-25.0 / 4.5) * std::exp(-25.0 / 4.5)).epsilon(1e-9));
+        auto c = torch::full({2, 3, 15, 17}, 0.25, torch::kDouble);
+        CHECK(torch::allclose(gauss_filter_valid(c), torch::full({2, 3, 5, 7}, 0.25, torch::kDouble)));
+        // <G x, v> = <x, Gᵀ v>, with Gᵀ from the custom backward.
+        auto a = torch::rand({2, 2, 30, 41}, torch::kDouble).requires_grad_(true);
+        auto v = torch::rand({2, 2, 20, 31}, torch::kDouble);
+        auto lhs = (gauss_filter_valid(a) * v).sum();
+        lhs.backward();
+        CHECK((a.grad() * a).sum().item<double>() == doctest::Approx(lhs.item<double>()).epsilon(1e-12));
+        CHECK_THROWS_AS(gauss_filter_valid(torch::rand({1, 1, 10, 40})), Error);
+    }
+    SUBCASE("the loss, float as trained, 5 and 3 scales, gradients to both images") {
+        for (auto hw : {std::array<int64_t, 2>{180, 200}, std::array<int64_t, 2>{48, 70}}) {
+            auto b0 = torch::rand({2, 3, hw[0], hw[1]});
+            auto a0 = (b0 + 0.2 * torch::randn({2, 3, hw[0], hw[1]})).clamp(0, 1);
+            auto a = a0.clone().requires_grad_(true), b = b0.clone().requires_grad_(true);
+            auto fast = ms_ssim_loss(a, b);
+            fast.backward();
+            auto ga = a.grad().clone(), gb = b.grad().clone();
+            a.mutable_grad().zero_();
+            b.mutable_grad().zero_();
+            auto ref = ms_ssim_loss_reference(a, b);
+            ref.backward();
+            INFO("size " << hw[0] << "x" << hw[1]);
+            CHECK(fast.item<double>() > 0.05);
+            CHECK(fast.item<double>() == doctest::Approx(ref.item<double>()).epsilon(1e-5));
+            const double scale = a.grad().abs().max().item<double>();
+            CHECK(scale > 0);
+            CHECK((ga - a.grad()).abs().max().item<double>() < 1e-4 * scale);
+            CHECK((gb - b.grad()).abs().max().item<double>() < 1e-4 * scale);
+            CHECK(ms_ssim_loss(b0, b0).item<double>() == doctest::Approx(0.0).epsilon(1e-6));
+        }
+    }
 }
