@@ -295,14 +295,21 @@ std::vector<ParamGroup> FastModel::param_groups() {
 Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad) {
     const int64_t B = frames.size(), H = m_data.height, W = m_data.width;
     Layers out;
+    // The composed atlases are kept for priors() of the same step: composing costs an upsample of
+    // each coarse level forward and backward (~9 ms a step on synth pan).
+    const bool training = torch::GradMode::is_enabled();
+    auto bg = compose(m_bg);
+    m_composed_bg = training ? bg : torch::Tensor();
     out.uv_bg = to_grid(m_bg, map_coords(m_bg, frames, pad));
-    out.bg = sample_bicubic(compose(m_bg).expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
+    out.bg = sample_bicubic(bg.expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
     if (!m_two_layers) {
         out.sharp = out.bg;
         return out;
     }
+    auto fg = compose(m_fg);
+    m_composed_fg = training ? fg : torch::Tensor();
     out.uv_fg = to_grid(m_fg, map_coords(m_fg, frames, pad));
-    out.fg = sample_bicubic(compose(m_fg).expand({B, 3, m_fg.height, m_fg.width}), out.uv_fg);
+    out.fg = sample_bicubic(fg.expand({B, 3, m_fg.height, m_fg.width}), out.uv_fg);
     auto idx = torch::tensor(frames, torch::kLong);
     // The shared matte through the foreground mapping (its grid [-1,1] spans the atlas, which
     // the half-resolution matte spans too) plus the frame's residual.
@@ -315,8 +322,10 @@ Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad)
 
 torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>& frames,
                                 int64_t step, LossTerms& terms) {
-    auto tv = tv_l1(compose(m_bg));
-    if (m_two_layers) tv = tv + tv_l1(compose(m_fg));
+    auto bg = m_composed_bg.defined() ? m_composed_bg : compose(m_bg);
+    auto tv = tv_l1(bg);
+    if (m_two_layers) tv = tv + tv_l1(m_composed_fg.defined() ? m_composed_fg : compose(m_fg));
+    m_composed_bg = m_composed_fg = torch::Tensor();
     // TV in frame px: a 2x atlas's neighbours differ by half as much (synth pan, 2x, 600 steps:
     // w_tv 0.002 24.03 dB, 0.004 24.15, 0.0005 23.90).
     torch::Tensor total = m_opts.w_tv * m_bg.scale * tv;

@@ -100,6 +100,7 @@ private:
     torch::Tensor m_alpha_logit;  // [T,1,H/4,W/4] per-frame residual logit
     torch::Tensor m_alpha_atlas;  // [1,1,h,w] shared matte logit, foreground atlas at half size
     int64_t m_alpha_h = 0, m_alpha_w = 0;
+    torch::Tensor m_composed_bg, m_composed_fg;  // of the last training render (see render_padded)
     torch::Tensor m_boot_weight;  // [T,1,H,W] how far each mask is trusted (sharp subject: most)
 };
 

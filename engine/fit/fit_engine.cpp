@@ -69,6 +69,7 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (const char* e = std::getenv("REFOCUS_ROBUST_C")) m_opts.robust_c = std::atof(e);
     if (const char* e = std::getenv("REFOCUS_FALLBACK_K")) m_opts.fallback_k = std::atof(e);
     if (const char* e = std::getenv("REFOCUS_MS_SSIM_SHARE")) m_opts.ms_ssim_share = std::atof(e);
+    if (const char* e = std::getenv("REFOCUS_LR_FLOOR")) m_opts.lr_floor = std::atof(e);
     if (!m_data || m_data->frames <= 0) throw Error("fit: the clip has no frames");
     if (m_opts.minutes <= 0 && m_opts.iters <= 0)
         throw Error("fit: give a budget (--minutes M or --iters N)");
@@ -255,9 +256,10 @@ void FitEngine::step() {
         loss_v = mse;
     } else {
         std::lock_guard<std::mutex> lock(m_model_mutex);
-        // Learning rate: cosine decay to 10% over the budget.
+        // Learning rate: cosine decay to lr_floor over the budget.
         const double frac = budget_fraction();
-        const double factor = 0.1 + 0.9 * 0.5 * (1.0 + std::cos(M_PI * frac));
+        const double fl = m_opts.lr_floor;
+        const double factor = fl + (1.0 - fl) * 0.5 * (1.0 + std::cos(M_PI * frac));
         auto& groups = m_optim->param_groups();
         for (size_t i = 0; i < groups.size(); ++i)
             static_cast<torch::optim::AdamOptions&>(groups[i].options()).lr(m_base_lr[i] * factor);

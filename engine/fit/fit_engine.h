@@ -28,6 +28,7 @@ struct FitOptions {
     int batch = 2;                 // frames per step
     double w_reco = 1.0;           // λ1 of paper eq. 4 (others live in the models)
     double ms_ssim_share = 0.84;   // L_reco = 0.84·(1 − MS-SSIM) + 0.16·L1 (Zhao et al. 2016)
+    double lr_floor = 0.1;         // the learning rate decays (cosine) to this share of its own
     double checkpoint_seconds = 60.0;
     // Robust reconstruction (IRLS, Geman-McClure weights): pixels whose reblur residual stays
     // far above their frame's typical residual — what the model cannot explain (an occlusion
