@@ -855,3 +855,41 @@ TEST_CASE("MS-SSIM loss: the fused Gaussian filter matches the tensor-op referen
         }
     }
 }
+
+TEST_CASE("weighted TV: each difference weighs its two pixels' mean weight, broadcast over channels") {
+    auto x = torch::rand({1, 3, 9, 12}, torch::kDouble);
+    CHECK(tv_l1(x, torch::ones({1, 1, 9, 12}, torch::kDouble)).item<double>() ==
+          doctest::Approx(tv_l1(x).item<double>()).epsilon(1e-12));
+    CHECK(tv_l1(x, torch::full({1, 1, 9, 12}, 3.0, torch::kDouble)).item<double>() ==
+          doctest::Approx(3 * tv_l1(x).item<double>()).epsilon(1e-12));
+    // A ramp along x (step 1 per px) under a weight of 1 on the left half and 3 on the right:
+    // the difference across the boundary weighs 2.
+    auto ramp = torch::arange(4, torch::kDouble).view({1, 1, 1, 4}).expand({1, 1, 2, 4}).contiguous();
+    auto w = torch::tensor({1.0, 1.0, 3.0, 3.0}, torch::kDouble).view({1, 1, 1, 4}).expand({1, 1, 2, 4});
+    CHECK(tv_l1(ramp, w).item<double>() == doctest::Approx((1.0 + 2.0 + 3.0) / 3.0).epsilon(1e-12));
+}
+
+TEST_CASE("TV by the radii a texel was seen at: one radius in every view weighs more, a focus change does not") {
+    // Texels: seen at 3 px in every view; at 0.5 px everywhere; sharpest 0.2 px but over 0.2..6 px
+    // (a focus pull); at 9 px everywhere (capped); at 2 px with a spread of 0.5 px (half-way).
+    auto sharp = torch::tensor({3.0, 0.5, 0.2, 9.0, 2.0}, torch::kDouble);
+    auto mean = torch::tensor({3.0, 0.5, 3.0, 9.0, 2.0}, torch::kDouble);
+    auto sd = torch::tensor({0.0, 0.0, 2.0, 0.0, 0.5}, torch::kDouble);
+    auto f = tv_radius_factor(sharp, mean, mean * mean + sd * sd, 1.0, 4.0, 1.0);
+    CHECK(f[0].item<double>() == doctest::Approx(3.0));
+    CHECK(f[1].item<double>() == doctest::Approx(1.0));
+    CHECK(f[2].item<double>() == doctest::Approx(1.0));
+    CHECK(f[3].item<double>() == doctest::Approx(4.0));
+    CHECK(f[4].item<double>() == doctest::Approx(1.5));
+    auto g2 = tv_radius_factor(sharp, mean, mean * mean + sd * sd, 2.0, 4.0, 1.0);
+    CHECK(g2[1].item<double>() == doctest::Approx(1.0));
+    CHECK(g2[0].item<double>() == doctest::Approx(4.0));
+    CHECK(tv_radius_factor(sharp, mean, mean * mean, 1.0, 1.0, 1.0).eq(1.0).all().item<bool>());
+    // Deep blur fades back to 1: 9 px is past a fade at 5; 3 px is not; 4.5 px is half-way.
+    auto faded = tv_radius_factor(sharp, mean, mean * mean + sd * sd, 1.0, 4.0, 1.0, 5.0);
+    CHECK(faded[0].item<double>() == doctest::Approx(3.0));
+    CHECK(faded[3].item<double>() == doctest::Approx(1.0));
+    auto half = tv_radius_factor(torch::full({1}, 4.5, torch::kDouble), torch::full({1}, 4.5, torch::kDouble),
+                                 torch::full({1}, 4.5 * 4.5, torch::kDouble), 1.0, 4.0, 1.0, 5.0);
+    CHECK(half[0].item<double>() == doctest::Approx(1.0 + 3.0 * 0.5));
+}

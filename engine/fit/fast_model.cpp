@@ -138,6 +138,37 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
             m_bg.to_atlas = before;
     }
     init_levels(m_bg, fuse(m_bg, bg_weight));
+    update_tv_weights();
+}
+
+void FastModel::update_tv_weights() {
+    // Weighted as the atlases were fused (the sharpest views of each layer), over the atlases'
+    // current geometry: a checkpoint may bring its own (adopt_geometry).
+    torch::NoGradGuard no_grad;
+    const FitData& d = m_data;
+    const auto sharpness = (d.radius + 0.5).pow(-4.0).unsqueeze(1);
+    m_bg.tv_weight = m_fg.tv_weight = torch::Tensor();
+    if (int(m_opts.tv_radius_layers) & 1) {
+        auto views = m_two_layers ? (1.0 - d.mask).clamp_min(1e-3) : torch::ones_like(sharpness);
+        m_bg.tv_weight = tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1), sharpness * views, views);
+    }
+    if (m_two_layers && (int(m_opts.tv_radius_layers) & 2)) {
+        auto views = d.mask.clamp_min(1e-3);
+        m_fg.tv_weight = tv_weight_map(m_fg, d.layer_radius(true).unsqueeze(1), sharpness * views, views);
+    }
+}
+
+torch::Tensor FastModel::tv_weight_map(const Atlas& a, const torch::Tensor& radius,
+                                       const torch::Tensor& weight, const torch::Tensor& views) const {
+    // The radii each texel was seen at, fused into the atlas: toward its sharpest views (as the
+    // texels are) and over all its views alike (their mean and spread); see tv_radius_factor.
+    const double cap = m_opts.tv_radius_cap;
+    if (!(cap > 1)) return torch::Tensor();
+    auto sharp = fuse(a, weight, radius);  // [1,Ha,Wa], ~ the smallest radius seen
+    auto mean = fuse(a, views, radius);    // each view alike
+    auto f = tv_radius_factor(sharp, mean, fuse(a, views, radius * radius), m_opts.tv_radius_gain, cap,
+                              m_opts.tv_radius_spread, m_opts.tv_radius_fade);
+    return f.unsqueeze(0);
 }
 
 void FastModel::rescale(Atlas& a, double s) {
@@ -250,15 +281,16 @@ torch::Tensor FastModel::compose(const Atlas& a) const {
     return sum;
 }
 
-torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight) const {
+torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight, const torch::Tensor& what) const {
     // The margin starts as the frames' edges replicated outward, trusted 1000x less than what a
     // frame saw (a moving camera sees another frame's margin).
     const int64_t P = m_opts.pad;
-    if (P == 0) return fuse_frames(a.to_atlas, a.height, a.width, m_data.input, weight);
+    const torch::Tensor& src = what.defined() ? what : m_data.input;
+    if (P == 0) return fuse_frames(a.to_atlas, a.height, a.width, src, weight);
     auto inside = F::pad(torch::ones({1, 1, m_data.height, m_data.width}),
                          F::PadFuncOptions({P, P, P, P}).value(1e-3));
     auto shift = translation(-P, -P).to(a.to_atlas.dtype());
-    return fuse_frames(torch::matmul(a.to_atlas, shift), a.height, a.width, pad_edges(m_data.input, P),
+    return fuse_frames(torch::matmul(a.to_atlas, shift), a.height, a.width, pad_edges(src, P),
                        pad_edges(weight, P) * inside);
 }
 
@@ -323,8 +355,8 @@ Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad)
 torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>& frames,
                                 int64_t step, LossTerms& terms) {
     auto bg = m_composed_bg.defined() ? m_composed_bg : compose(m_bg);
-    auto tv = tv_l1(bg);
-    if (m_two_layers) tv = tv + tv_l1(m_composed_fg.defined() ? m_composed_fg : compose(m_fg));
+    auto tv = tv_l1(bg, m_bg.tv_weight);
+    if (m_two_layers) tv = tv + tv_l1(m_composed_fg.defined() ? m_composed_fg : compose(m_fg), m_fg.tv_weight);
     m_composed_bg = m_composed_fg = torch::Tensor();
     // TV in frame px: a 2x atlas's neighbours differ by half as much (synth pan, 2x, 600 steps:
     // w_tv 0.002 24.03 dB, 0.004 24.15, 0.0005 23.90).
@@ -410,6 +442,7 @@ void FastModel::load_state(const std::map<std::string, torch::Tensor>& in) {
         }
     }
     FitModel::load_state(s);  // the parameters may be new tensors: the engine remakes its optimiser
+    update_tv_weights();
 }
 
 torch::Tensor FastModel::geometry(const Atlas& a) {

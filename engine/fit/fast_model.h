@@ -25,6 +25,14 @@ struct FastModelOptions {
     double lr_warp = 0.05;      // px per step (Adam)
     double lr_alpha = 0.05;
     double w_tv = 0.002;        // atlas TV weight
+    // ... times clamp(gain · r, 1, cap) on texels seen at one radius r in every frame (losses.h,
+    // tv_radius_factor; cap 1: uniform): where the radii seen vary by less than `spread` px
+    // and r < fade px (fading to 1 from fade − 1).
+    double tv_radius_cap = 4.0;
+    double tv_radius_gain = 2.0;
+    double tv_radius_spread = 1.0;
+    double tv_radius_fade = 5.0;
+    double tv_radius_layers = 3;    // which atlases: 1 background, 2 foreground, 3 both
     double w_warp = 0.01;       // residual warp smoothness
     // Neighbouring frames' residual warps and mattes agree. Off since the tenth session: the
     // residual corrects each frame's own homography error (hand shake, a blurred frame's weak
@@ -70,13 +78,18 @@ private:
         torch::Tensor to_atlas;             // [T,3,3] float32: frame pixel → atlas pixel
         torch::Tensor warp;                 // [T,2,gh,gw] residual, px
         bool learn_warp = false;
+        torch::Tensor tv_weight;            // [1,1,Ha,Wa] TV weight per texel (undefined: 1)
     };
     torch::Tensor compose(const Atlas& a) const;                           // [1,3,Ha,Wa]
     // Atlas pixel coordinates of frame pixels, `pad` px beyond the edges: [B,H+2pad,W+2pad,2].
     torch::Tensor map_coords(const Atlas& a, const std::vector<int64_t>& frames, int64_t pad = 0) const;
     torch::Tensor to_grid(const Atlas& a, const torch::Tensor& px) const;  // → [-1,1]
     void init_levels(Atlas& a, const torch::Tensor& fused);
-    torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight) const;  // sharpest-weighted
+    // Frames (or `what`, [T,C,H,W] in frame px) fused into the atlas, sharpest-weighted.
+    torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight, const torch::Tensor& what = {}) const;
+    void update_tv_weights();  // each atlas's tv_weight, from the data and its geometry
+    torch::Tensor tv_weight_map(const Atlas& a, const torch::Tensor& radius, const torch::Tensor& weight,
+                                const torch::Tensor& views) const;
     void set_atlas(Atlas& a, const torch::Tensor& rgb);
     static void rescale(Atlas& a, double s);
     // Refines each frame's mapping by ECC image alignment (Evangelidis & Psarakis 2008) of the

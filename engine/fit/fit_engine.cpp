@@ -35,6 +35,11 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         env("REFOCUS_FAST_LR_ATLAS", o.lr_atlas);
         env("REFOCUS_FAST_LR_WARP", o.lr_warp);
         env("REFOCUS_FAST_W_TV", o.w_tv);
+        env("REFOCUS_FAST_TV_RADIUS_CAP", o.tv_radius_cap);
+        env("REFOCUS_FAST_TV_RADIUS_GAIN", o.tv_radius_gain);
+        env("REFOCUS_FAST_TV_RADIUS_SPREAD", o.tv_radius_spread);
+        env("REFOCUS_FAST_TV_RADIUS_FADE", o.tv_radius_fade);
+        env("REFOCUS_FAST_TV_RADIUS_LAYERS", o.tv_radius_layers);
         env("REFOCUS_FAST_W_WARP", o.w_warp);
         env("REFOCUS_FAST_W_TEMPORAL", o.w_temporal);
         env("REFOCUS_FAST_W_ALPHA_RESIDUAL", o.w_alpha_residual);

@@ -201,11 +201,26 @@ torch::Tensor gauss_filter_valid_reference(const torch::Tensor& x) {
     return z;
 }
 
-torch::Tensor tv_l1(const torch::Tensor& x) {
+torch::Tensor tv_l1(const torch::Tensor& x, const torch::Tensor& weight) {
     const int64_t d = x.dim();
-    auto dx = x.narrow(d - 1, 1, x.size(d - 1) - 1) - x.narrow(d - 1, 0, x.size(d - 1) - 1);
-    auto dy = x.narrow(d - 2, 1, x.size(d - 2) - 1) - x.narrow(d - 2, 0, x.size(d - 2) - 1);
-    return dx.abs().mean() + dy.abs().mean();
+    auto diff = [&](const torch::Tensor& t, int64_t dim) {
+        return t.narrow(dim, 1, t.size(dim) - 1) - t.narrow(dim, 0, t.size(dim) - 1);
+    };
+    auto pair_mean = [&](const torch::Tensor& t, int64_t dim) {
+        return 0.5 * (t.narrow(dim, 1, t.size(dim) - 1) + t.narrow(dim, 0, t.size(dim) - 1));
+    };
+    auto dx = diff(x, d - 1).abs(), dy = diff(x, d - 2).abs();
+    if (!weight.defined()) return dx.mean() + dy.mean();
+    return (dx * pair_mean(weight, d - 1)).mean() + (dy * pair_mean(weight, d - 2)).mean();
+}
+
+torch::Tensor tv_radius_factor(const torch::Tensor& r_sharp, const torch::Tensor& r_mean,
+                               const torch::Tensor& r_sq_mean, double gain, double cap, double spread,
+                               double fade) {
+    auto sd = (r_sq_mean - r_mean * r_mean).clamp_min(0).sqrt();
+    auto same = (1.0 - sd / std::max(spread, 1e-6)).clamp(0, 1);
+    if (fade > 0) same = same * (fade - r_sharp).clamp(0, 1);
+    return 1.0 + ((gain * r_sharp).clamp(1.0, std::max(cap, 1.0)) - 1.0) * same;
 }
 
 }  // namespace refocus
