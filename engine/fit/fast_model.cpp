@@ -150,16 +150,20 @@ void FastModel::update_tv_weights() {
     m_bg.tv_weight = m_fg.tv_weight = torch::Tensor();
     if (int(m_opts.tv_radius_layers) & 1) {
         auto views = m_two_layers ? (1.0 - d.mask).clamp_min(1e-3) : torch::ones_like(sharpness);
-        m_bg.tv_weight = tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1), sharpness * views, views);
+        m_bg.tv_weight = tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1), sharpness * views, views,
+                                       m_opts.tv_radius_fade);
     }
     if (m_two_layers && (int(m_opts.tv_radius_layers) & 2)) {
         auto views = d.mask.clamp_min(1e-3);
-        m_fg.tv_weight = tv_weight_map(m_fg, d.layer_radius(true).unsqueeze(1), sharpness * views, views);
+        // The subject's layer keeps the weight at any radius (no fade): synth pan's subject,
+        // blurred 7 px in every frame, true radius, 10 min: 26.02 -> 26.59 dB.
+        m_fg.tv_weight = tv_weight_map(m_fg, d.layer_radius(true).unsqueeze(1), sharpness * views, views, 0.0);
     }
 }
 
 torch::Tensor FastModel::tv_weight_map(const Atlas& a, const torch::Tensor& radius,
-                                       const torch::Tensor& weight, const torch::Tensor& views) const {
+                                       const torch::Tensor& weight, const torch::Tensor& views,
+                                       double fade) const {
     // The radii each texel was seen at, fused into the atlas: toward its sharpest views (as the
     // texels are) and over all its views alike (their mean and spread); see tv_radius_factor.
     const double cap = m_opts.tv_radius_cap;
@@ -167,7 +171,7 @@ torch::Tensor FastModel::tv_weight_map(const Atlas& a, const torch::Tensor& radi
     auto sharp = fuse(a, weight, radius);  // [1,Ha,Wa], ~ the smallest radius seen
     auto mean = fuse(a, views, radius);    // each view alike
     auto f = tv_radius_factor(sharp, mean, fuse(a, views, radius * radius), m_opts.tv_radius_gain, cap,
-                              m_opts.tv_radius_spread, m_opts.tv_radius_fade);
+                              m_opts.tv_radius_spread, fade);
     return f.unsqueeze(0);
 }
 

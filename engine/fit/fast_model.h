@@ -31,7 +31,7 @@ struct FastModelOptions {
     double tv_radius_cap = 4.0;
     double tv_radius_gain = 2.0;
     double tv_radius_spread = 1.0;
-    double tv_radius_fade = 5.0;
+    double tv_radius_fade = 5.0;     // background atlas only
     double tv_radius_layers = 3;    // which atlases: 1 background, 2 foreground, 3 both
     double w_warp = 0.01;       // residual warp smoothness
     // Neighbouring frames' residual warps and mattes agree. Off since the tenth session: the
@@ -89,7 +89,7 @@ private:
     torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight, const torch::Tensor& what = {}) const;
     void update_tv_weights();  // each atlas's tv_weight, from the data and its geometry
     torch::Tensor tv_weight_map(const Atlas& a, const torch::Tensor& radius, const torch::Tensor& weight,
-                                const torch::Tensor& views) const;
+                                const torch::Tensor& views, double fade) const;
     void set_atlas(Atlas& a, const torch::Tensor& rgb);
     static void rescale(Atlas& a, double s);
     // Refines each frame's mapping by ECC image alignment (Evangelidis & Psarakis 2008) of the

@@ -33,9 +33,10 @@ torch::Tensor tv_l1(const torch::Tensor& x, const torch::Tensor& weight = {});
 // at several radii has those frequencies from the others (a focus change moves the zeros). So:
 // clamp(gain · r_sharp, 1, cap) where the radii vary (standard deviation) by 0, blending to 1 at
 // `spread` px and beyond. With `fade` > 0 it also blends to 1 as r_sharp goes from fade − 1 to
-// fade px: measured on the synth clips (true radius, 1500 steps), more TV lifted pan, whose wall
-// is blurred 0.5–3.8 px, but cost walkout, whose wall is blurred 5–9 px (glyphs and checkers;
-// without the fade, 20.83 → 20.37 dB), so deep blur keeps the base weight.
+// fade px. Measured on the synth clips (true radius): more TV lifted pan, whose wall is blurred
+// 0.5–3.8 px and whose subject 7 px, but cost walkout, whose wall is blurred 5–9 px (glyphs and
+// checkers; weighed 4×, 20.83 → 20.37 dB at 1500 steps), so the fast model fades the background
+// atlas's weight from 4 to 5 px and keeps the subject's at any radius.
 torch::Tensor tv_radius_factor(const torch::Tensor& r_sharp, const torch::Tensor& r_mean,
                                const torch::Tensor& r_sq_mean, double gain, double cap, double spread,
                                double fade = 0);
