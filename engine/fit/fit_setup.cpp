@@ -50,12 +50,17 @@ std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps
 // from: prep/stack_coc_%04d.exr and prep/stack_coc.json (written last) holding a key of its
 // inputs (prepare.json's content, the layer decision). Opening a fitted project, exporting and
 // the studio then reuse it; a new prepare or another decision recomputes it.
+std::string absolute_key() {  // REFOCUS_ABSOLUTE_BLUR (A/B hook, stack_coc.cpp) changes the result
+    const char* e = std::getenv("REFOCUS_ABSOLUTE_BLUR");
+    return e && std::atoi(e) == 0 ? "/relative" : "/absolute";
+}
+
 std::string stack_key(const Project& project, const FitData& d) {
     const std::string prep = read_text_file(fs::path(prepare_dir(project)) / "prepare.json");
     // The radius is measured in the kernel's units: a pillbox's differs from the disk's.
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
            (d.static_camera ? "/static" : "/moving") +
-           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v6";
+           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v7" + absolute_key();
 }
 
 fs::path stack_frame_path(const Project& project, int t) {
@@ -272,7 +277,9 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             if (cached.defined()) {
                 d->radius = cached;
             } else {
-                d->radius = estimate_radius_from_stack(*d);
+                StackCocReport report;
+                d->radius = estimate_radius_from_stack(*d, {}, &report);
+                log.info("radius: " + report.summary);
                 try {
                     save_stack_radius(project, d->radius, key);
                 } catch (const std::exception& e) {

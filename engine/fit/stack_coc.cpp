@@ -3,6 +3,10 @@
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
 
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+
 #include "fit/atlas_geometry.h"
 #include "fit/tensor_image.h"
 #include "ops/lens_blur.h"
@@ -39,13 +43,181 @@ torch::Tensor erode(const torch::Tensor& valid, int r) {
     return -F::max_pool2d(-valid, F::MaxPool2dFuncOptions(2 * r + 1).stride(1).padding(r));
 }
 
+// Push-pull fill: v [N,1,H,W] kept where w (0/1) is 1, the rest filled from the nearest kept
+// values at the coarsest scale that reaches them, blended up the pyramid.
+torch::Tensor fill_from(const torch::Tensor& v, const torch::Tensor& w) {
+    if ((w > 0).all().item<bool>()) return v;
+    if (std::min(v.size(2), v.size(3)) <= 1) {  // coarsest: holes take the kept values' mean
+        auto mean = (v * w).sum({2, 3}, true) / w.sum({2, 3}, true).clamp_min(1e-12);
+        return w * v + (1 - w) * mean;
+    }
+    auto opts = F::AvgPool2dFuncOptions(2).stride(2).ceil_mode(true);
+    auto wd = F::avg_pool2d(w, opts);
+    auto vd = F::avg_pool2d(v * w, opts) / wd.clamp_min(1e-12);
+    auto coarse = fill_from(vd, (wd > 0).to(v.scalar_type()));
+    auto up = F::interpolate(coarse, F::InterpolateFuncOptions()
+                                         .size(std::vector<int64_t>{v.size(2), v.size(3)})
+                                         .mode(torch::kBilinear)
+                                         .align_corners(false));
+    return w * v + (1 - w) * up;
+}
+
+// The composite's absolute blur r0 [Hc,Wc] (edge_blur.h). Each frame's isolated edges are
+// measured where the frame holds the layer; an edge of absolute radius e at a pixel whose
+// relative radius (the stack's) is rel says r0 = sqrt(e² − rel²) there. Only edges seen within
+// floor_rel_max of their sharpest view count: for a point seen far out of focus that difference
+// of squares is all noise (e = 6 ± 1 against rel = 5 reads r0 = 0-4.8). The readings of all
+// frames, placed on the canvas, are averaged over `spread` px (normalised convolution) where
+// at least min_local_edges fall, the rest filled from the nearest (push-pull). The frames, not
+// the composite: the composite is resampled and blended, which blurs it by 0.5-1 px (synth pan's
+// in-focus rows: frames 0-0.4 px, composite 0.75-1.25), and the frames hold 30x the edges.
+// Below floor_lo r0 reads 0 and ramps to r0 at floor_hi (an edge in focus reads 0-0.75 px).
+// Not the luma-guided filter the relative radius is spread with: its locally linear model in
+// luma turned sparse readings into a radius that followed the texture (synth pan, 600 steps:
+// the in-focus rows' noise panel came out speckled, a star rang).
+torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, const torch::Tensor& region,
+                             const std::vector<torch::Tensor>& rel, const torch::Tensor& own, const StackCocOptions& o,
+                             std::string& report) {
+    const int64_t Hc = own.size(0), Wc = own.size(1), H = d.height, W = d.width;
+    // Readings binned into cells of `cell` px on the canvas; each cell's median (robust to the
+    // few textures whose edges read a false blur the same way in every frame), where it holds at
+    // least min_local_edges readings; bilinear between cell centres, the rest filled from the
+    // nearest cells (push-pull).
+    const int cell = std::max<int>(o.spread_px, std::min(Hc, Wc) / 15);
+    const int64_t Gh = (Hc + cell - 1) / cell, Gw = (Wc + cell - 1) / cell;
+    std::vector<std::vector<float>> bins(Gh * Gw);
+    int64_t measured = 0, used = 0;
+    std::vector<float> all;
+    for (int64_t t = 0; t < d.frames; ++t) {
+        const auto& f = d.input[t];
+        auto luma = 0.2126 * f[0] + 0.7152 * f[1] + 0.0722 * f[2];
+        auto allowed = region.defined() ? (region[t][0] > 0.5) : torch::ones({H, W}, torch::kBool);
+        const EdgeBlurSamples e = measure_edge_blur(luma, allowed, d.blur, o.edge);
+        measured += e.size();
+        if (e.size() == 0) continue;
+        auto xi = e.x.to(torch::kLong), yi = e.y.to(torch::kLong);
+        auto r_rel = rel[t].index({yi, xi});
+        // The floor dominates the reading (r0 >= 0.87 e), or the frame is near its sharpest view.
+        auto keep = (r_rel < o.floor_rel_max) | (r_rel <= 0.5 * e.radius);
+        auto r0 = (e.radius.pow(2) - r_rel.pow(2)).clamp_min(0).sqrt().masked_select(keep).contiguous();
+        auto pts = torch::stack({e.x.masked_select(keep), e.y.masked_select(keep), torch::ones_like(r0)}).to(torch::kFloat64);
+        auto q = torch::matmul(to_canvas[t].to(torch::kFloat64), pts);
+        auto cx = (q[0] / q[2]).contiguous(), cy = (q[1] / q[2]).contiguous();
+        const double* px = cx.data_ptr<double>();
+        const double* py = cy.data_ptr<double>();
+        const float* pr = r0.data_ptr<float>();
+        for (int64_t i = 0; i < r0.numel(); ++i) {
+            const int64_t gx = int64_t(std::floor(px[i] / cell)), gy = int64_t(std::floor(py[i] / cell));
+            if (gx < 0 || gy < 0 || gx >= Gw || gy >= Gh) continue;
+            bins[gy * Gw + gx].push_back(pr[i]);
+            all.push_back(pr[i]);
+            ++used;
+        }
+    }
+    char buf[200];
+    if (used < o.min_edges) {
+        std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable: no floor", (long long)measured, (long long)used);
+        report = buf;
+        return torch::zeros({Hc, Wc});
+    }
+    auto med = torch::zeros({1, 1, Gh, Gw}), has = torch::zeros({1, 1, Gh, Gw});
+    for (int64_t i = 0; i < Gh * Gw; ++i) {
+        auto& b = bins[i];
+        if (int64_t(b.size()) < o.min_local_edges) continue;
+        std::nth_element(b.begin(), b.begin() + b.size() / 2, b.end());
+        med.view({-1})[i] = b[b.size() / 2];
+        has.view({-1})[i] = 1.0f;
+    }
+    // The floor is a smooth surface over the layer: a quadratic in canvas coordinates fitted to
+    // the cells' medians (weighted by their counts), robustly (iteratively reweighted, Tukey's
+    // biweight at 4.685 MADs). Each texture reads its own bias (a panel of stripes 0.5-1 px high,
+    // of glyphs low), and a cell-by-cell map turned those into a patchwork of radii that the fit
+    // deconvolved into rings and garbled stripes (synth pan, 600 steps: the in-focus rows
+    // 33.8 -> 22.9 dB where a cell's fill reached them). The depth of a layer that is never in
+    // focus changes slowly over it; what changes fast is a focus change, which the stack measures.
+    std::vector<double> cu, cv, cr, cw;
+    for (int64_t gy = 0; gy < Gh; ++gy)
+        for (int64_t gx = 0; gx < Gw; ++gx) {
+            const int64_t i = gy * Gw + gx;
+            if (has.view({-1})[i].item<float>() < 0.5) continue;
+            cu.push_back(((gx + 0.5) * cell) / Wc - 0.5);
+            cv.push_back(((gy + 0.5) * cell) / Hc - 0.5);
+            cr.push_back(med.view({-1})[i].item<float>());
+            cw.push_back(std::sqrt(double(bins[i].size())));
+        }
+    const int64_t n = cr.size();
+    auto U = torch::tensor(cu, torch::kFloat64), V = torch::tensor(cv, torch::kFloat64);
+    auto R = torch::tensor(cr, torch::kFloat64), W0 = torch::tensor(cw, torch::kFloat64);
+    auto basis = [](const torch::Tensor& u, const torch::Tensor& v) {
+        return torch::stack({torch::ones_like(u), u, v, u * u, u * v, v * v}, 1);
+    };
+    auto A = basis(U, V);
+    // Quadratic, plane or constant by the number of measured cells: a quadratic through a few
+    // cells of a tiny clip (synth pan at 128x72, 8 frames) bent the wall's floor the wrong way.
+    const int64_t P = n >= 40 ? 6 : n >= 10 ? 3 : 1;
+    A = A.narrow(1, 0, P);
+    auto wts = W0.clone();
+    torch::Tensor coef;
+    for (int it = 0; it < 10; ++it) {
+        auto sw = wts.sqrt().unsqueeze(1);
+        coef = std::get<0>(torch::linalg::lstsq(A * sw, (R * wts.sqrt()).unsqueeze(1), c10::nullopt, c10::nullopt));
+        auto res = R - torch::matmul(A, coef).squeeze(1);
+        const double mad = std::max(0.1, res.abs().median().item<double>() * 1.4826);
+        auto z = (res / (4.685 * mad)).clamp(-1, 1);
+        wts = W0 * (1 - z * z).pow(2);
+    }
+    auto ys = (torch::arange(Hc, torch::kFloat64) + 0.5) / double(Hc) - 0.5;
+    auto xs = (torch::arange(Wc, torch::kFloat64) + 0.5) / double(Wc) - 0.5;
+    auto g = torch::meshgrid({ys, xs}, "ij");
+    auto r0 = torch::matmul(basis(g[1].flatten(), g[0].flatten()).narrow(1, 0, P), coef)
+                  .view({Hc, Wc}).to(torch::kFloat32)
+                  // Within the cells' own range: a surface through few cells extrapolates (synth
+                  // rack's subject: 40 edges reading 0.25 px gave a floor of 5.6 px).
+                  .clamp(std::max(0.0, R.min().item<double>()), std::min(o.edge.rmax, R.max().item<double>()));
+    // The surface holds where it was measured: within floor_fill_cells cells of a measured cell,
+    // fading to 0 (no evidence of blur) beyond.
+    auto near = has;
+    for (int k = 0; k < o.floor_fill_cells; ++k)
+        near = F::max_pool2d(near, F::MaxPool2dFuncOptions(3).stride(1).padding(1));
+    auto support = F::interpolate(near, F::InterpolateFuncOptions()
+                                            .size(std::vector<int64_t>{Gh * cell, Gw * cell})
+                                            .mode(torch::kBilinear)
+                                            .align_corners(false))
+                       .narrow(2, 0, Hc).narrow(3, 0, Wc)[0][0];
+    r0 = r0 * support;
+    const double lo = o.floor_lo, hi = std::max(o.floor_hi, lo + 1e-3);
+    r0 = torch::where(r0 >= hi, r0, ((r0 - lo) / (hi - lo)).clamp(0, 1) * hi);
+    r0 = r0 * (own > 0.5).to(torch::kFloat32);
+    auto inside = r0.masked_select(own > 0.5);
+    // Past floor_max the readings are not to be trusted: a wall blurred 6-9 px carries its
+    // texture (glyphs, checkers of 1-6 px) inside every profile's window, and only the edges
+    // that look narrower pass (synth walkout: the wall read 5.3-6.0 px for 7.5-9.0; fitted with
+    // that floor, 600 steps, 16.94 -> 14.84 dB, every band of the wall below the input). A layer
+    // whose floor reads more than that keeps the stack's relative radius.
+    const double floor_median = inside.numel() ? inside.median().item<double>() : 0.0;
+    if (floor_median > o.floor_max) {
+        std::nth_element(all.begin(), all.begin() + all.size() / 2, all.end());
+        std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable (median %.2f px): floor median %.2f px "
+                      "is past what isolated edges measure (%.1f px), withdrawn",
+                      (long long)measured, (long long)used, double(all[all.size() / 2]), floor_median, o.floor_max);
+        report = buf;
+        return torch::zeros({Hc, Wc});
+    }
+    std::nth_element(all.begin(), all.begin() + all.size() / 2, all.end());
+    std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable (median %.2f px), floor median %.2f px",
+                  (long long)measured, (long long)used, double(all[all.size() / 2]),
+                  inside.numel() ? inside.median().item<double>() : 0.0);
+    report = buf;
+    return r0;
+}
+
 // One layer's pass. `to_ref` [T,3,3] float64 registers the layer (frame → reference);
 // `region` [T,1,H,W] (frame coordinates) is where the layer is seen, or undefined for all of it.
 // Only the layer's own pixels enter its all-in-focus composite and spread into flat areas, so a
 // subject passing over a wall pixel does not become that pixel's "sharpest view", and the wall
 // does not lend the subject its radius.
 torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, const torch::Tensor& region,
-                           const StackCocOptions& o) {
+                           const StackCocOptions& o, std::string* report) {
     const int64_t T = d.frames, H = d.height, W = d.width;
     // 1. Every frame on a canvas in reference coordinates that covers all of them (canvas pixel
     //    p reads frame t at to_canvas_t⁻¹ p). A canvas of the reference frame's own size, read
@@ -73,12 +245,14 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
     auto valid = erode(torch::stack(reg_valid), o.contrast_window + 1);  // [T,1,Hc,Wc]
     auto contrast = box(lap.pow(2), o.contrast_window) * valid;
     auto w = (contrast / contrast.amax({0}, true).clamp_min(1e-12)).pow(8) * valid;
+    auto own_seen = (w.sum(0)[0] > 1e-6).to(torch::kFloat32);  // [Hc,Wc]: where the composite is the layer's
     if (region.defined()) {
         // The layer's own views first; where it is never seen, every view (a fallback that the
         // final selection by region does not use anyway).
         auto own = torch::stack(reg_region);                 // [T,1,Hc,Wc]
         auto wo = w * (own > 0.5).to(torch::kFloat32);
         w = torch::where(wo.sum(0, true) > 1e-6, wo, w);
+        own_seen = (wo.sum(0)[0] > 1e-6).to(torch::kFloat32);
     }
     auto wsum = w.sum(0);                                         // [1,Hc,Wc]
     auto aif = (stack * w).sum(0) / wsum.clamp_min(1e-12);      // [3,Hc,Wc]
@@ -143,29 +317,19 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
         auto has_near = image_to_tensor(cover_near)[0] > 0, has_far = image_to_tensor(cover_far)[0] > 0;
         // Where nothing near was measured, no evidence of blur: radius 0 keeps the frame as it is
         // (the raw argmin there is whatever flattened a mismatch best, often the largest radius).
-        auto ft = torch::where(has_near, fn, torch::where(has_far, ff, torch::zeros_like(ff)));
-        out.push_back(ft.clamp(0.0, o.rmax));
+        auto ft = torch::where(has_near, fn, torch::where(has_far, ff, torch::zeros_like(ff))).clamp(0.0, o.rmax);
+        out.push_back(ft);
+    }
+    if (o.absolute) {  // absolute = the composite's own blur and the relative blur, moments added
+        std::string line;
+        auto floor = absolute_floor(d, to_canvas, region, out, own_seen, o, line).view({1, 1, Hc, Wc});
+        if (report) *report = line;
+        for (int64_t t = 0; t < T; ++t) {
+            auto f0 = warp(floor, to_canvas[t], H, W)[0][0].clamp_min(0);
+            out[t] = torch::sqrt(out[t] * out[t] + f0 * f0).clamp(0.0, o.rmax);
+        }
     }
     return torch::stack(out).contiguous();
-}
-
-// Push-pull fill: v [N,1,H,W] kept where w (0/1) is 1, the rest filled from the nearest kept
-// values at the coarsest scale that reaches them, blended up the pyramid.
-torch::Tensor fill_from(const torch::Tensor& v, const torch::Tensor& w) {
-    if ((w > 0).all().item<bool>()) return v;
-    if (std::min(v.size(2), v.size(3)) <= 1) {  // coarsest: holes take the kept values' mean
-        auto mean = (v * w).sum({2, 3}, true) / w.sum({2, 3}, true).clamp_min(1e-12);
-        return w * v + (1 - w) * mean;
-    }
-    auto opts = F::AvgPool2dFuncOptions(2).stride(2).ceil_mode(true);
-    auto wd = F::avg_pool2d(w, opts);
-    auto vd = F::avg_pool2d(v * w, opts) / wd.clamp_min(1e-12);
-    auto coarse = fill_from(vd, (wd > 0).to(v.scalar_type()));
-    auto up = F::interpolate(coarse, F::InterpolateFuncOptions()
-                                         .size(std::vector<int64_t>{v.size(2), v.size(3)})
-                                         .mode(torch::kBilinear)
-                                         .align_corners(false));
-    return w * v + (1 - w) * up;
 }
 
 }  // namespace
@@ -223,15 +387,22 @@ void split_radius_by_layer(FitData& d, int margin) {
     d.radius_bg = torch::stack(rb).contiguous();
 }
 
-torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o) {
+torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o_in, StackCocReport* report) {
+    StackCocOptions o = o_in;
+    if (const char* e = std::getenv("REFOCUS_ABSOLUTE_BLUR")) o.absolute = std::atoi(e) != 0;  // A/B hook
+    std::string line_bg, line_fg;
     torch::NoGradGuard no_grad;
     const bool layered = d.has_subject && d.mask.defined();
-    if (!layered) return layer_radius(d, d.to_ref, {}, o);
+    if (!layered) {
+        auto r = layer_radius(d, d.to_ref, {}, o, &line_bg);
+        if (report) report->summary = o.absolute ? "absolute floor: " + line_bg : "relative only";
+        return r;
+    }
     // Two layers: the background registered by the camera homographies, the subject by its own
     // track (a moving subject is not where the wall was: compared pixel by pixel across frames it
     // reads as blur; measured on the synth rack clip: 3-3.7 px on a subject in focus).
     auto mask = (d.mask > 0.5).to(torch::kFloat32);
-    auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o);
+    auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o, &line_bg);
     std::vector<double> vx, vy, sc;
     subject_track(d, vx, vy, &sc);
     std::vector<torch::Tensor> mats;
@@ -240,7 +411,9 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
         mats.push_back(sc[t] == 1.0 && sc[0] == 1.0
                            ? translation(vx[0] - vx[t], vy[0] - vy[t])
                            : torch::matmul(from_track0, subject_to_track(vx[t], vy[t], sc[t])));
-    auto fg = layer_radius(d, torch::stack(mats), mask, o);
+    auto fg = layer_radius(d, torch::stack(mats), mask, o, &line_fg);
+    if (report)
+        report->summary = o.absolute ? "absolute floor: wall " + line_bg + "; subject " + line_fg : "relative only";
     return torch::where(mask.squeeze(1) > 0.5, fg, bg).contiguous();
 }
 

@@ -10,8 +10,15 @@
 // The single-image estimator (edge reblur ratio) reads dense texture far too low (measured on
 // the synth tripod clip: median 0.36 px where the truth is ~5 px); this one needs focus to vary
 // over the clip and a registration, which prepare provides.
+// The stack alone is relative: the sharpest view of each point reads 0, so what a clip never
+// shows in focus would be left as shot. The composite's own blur r0 is therefore measured at its
+// edges (edge_blur.h, a single-image absolute estimate that only trusts isolated steps), spread
+// over the layer, and combined with the relative radius: r_t = sqrt(r0² + r_rel,t²).
 #include <torch/types.h>
 
+#include <string>
+
+#include "fit/edge_blur.h"
 #include "fit/fit_model.h"
 
 namespace refocus {
@@ -24,10 +31,27 @@ struct StackCocOptions {
     double min_confidence = 1e-4;  // cost spread (max − min) below this: not measured here
     int spread_px = 6;             // window of the confidence-weighted spread (then H/10 for the rest)
     double min_explained = 0.6;    // share of local variance the best match must explain to count
+    // The composite's own (absolute) blur, measured at its edges (edge_blur.h) and added to the
+    // stack's relative radius: r_t = sqrt(r0² + r_rel²) (second moments add). Off: relative only.
+    bool absolute = true;
+    EdgeBlurOptions edge;
+    int min_edges = 20;           // fewer accepted edges in a layer's composite: no floor there
+    int min_local_edges = 3;      // edges within the spread window a pixel's floor averages
+    int floor_fill_cells = 2;     // empty floor cells take their measured neighbours' up to this far
+    double floor_rel_max = 1.0;   // edges count where the frame is within this of its sharpest view
+    double floor_max = 4.5;       // a layer whose floor's median reads more keeps no floor
+    double floor_lo = 0.75;       // r0 under floor_lo reads 0, from floor_lo to floor_hi it ramps
+    double floor_hi = 1.5;        //   up to r0 (a sharp composite's edges read 0-0.75 px)
+};
+
+// What the estimate found, for the log.
+struct StackCocReport {
+    std::string summary;  // e.g. "absolute floor: wall 851 edges (median 1.25 px), subject ..."
 };
 
 // [T,H,W] radius maps for d.input registered by d.to_ref. Needs at least 2 frames.
-torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& opts = {});
+torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& opts = {},
+                                         StackCocReport* report = nullptr);
 
 // Each layer's own radius (FitData::radius_fg / radius_bg) from the visible surface's map
 // `d.radius` and the masks. The map holds the subject's radius inside its silhouette and the
