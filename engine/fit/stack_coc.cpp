@@ -86,7 +86,7 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     const int cell = std::max<int>(o.spread_px, std::min(Hc, Wc) / 15);
     const int64_t Gh = (Hc + cell - 1) / cell, Gw = (Wc + cell - 1) / cell;
     std::vector<std::vector<float>> bins(Gh * Gw);
-    int64_t measured = 0, used = 0;
+    int64_t measured = 0, used = 0, candidates = 0;
     std::vector<float> all;
     for (int64_t t = 0; t < d.frames; ++t) {
         const auto& f = d.input[t];
@@ -94,6 +94,7 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
         auto allowed = region.defined() ? (region[t][0] > 0.5) : torch::ones({H, W}, torch::kBool);
         const EdgeBlurSamples e = measure_edge_blur(luma, allowed, d.blur, o.edge);
         measured += e.size();
+        candidates += e.candidates;
         if (e.size() == 0) continue;
         auto xi = e.x.to(torch::kLong), yi = e.y.to(torch::kLong);
         auto r_rel = rel[t].index({yi, xi});
@@ -197,15 +198,15 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     const double floor_median = inside.numel() ? inside.median().item<double>() : 0.0;
     if (floor_median > o.floor_max) {
         std::nth_element(all.begin(), all.begin() + all.size() / 2, all.end());
-        std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable (median %.2f px): floor median %.2f px "
+        std::snprintf(buf, sizeof buf, "%lld of %lld edges measured, %lld usable (median %.2f px): floor median %.2f px "
                       "is past what isolated edges measure (%.1f px), withdrawn",
-                      (long long)measured, (long long)used, double(all[all.size() / 2]), floor_median, o.floor_max);
+                      (long long)measured, (long long)candidates, (long long)used, double(all[all.size() / 2]), floor_median, o.floor_max);
         report = buf;
         return torch::zeros({Hc, Wc});
     }
     std::nth_element(all.begin(), all.begin() + all.size() / 2, all.end());
-    std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable (median %.2f px), floor median %.2f px",
-                  (long long)measured, (long long)used, double(all[all.size() / 2]),
+    std::snprintf(buf, sizeof buf, "%lld of %lld edges measured, %lld usable (median %.2f px), floor median %.2f px",
+                  (long long)measured, (long long)candidates, (long long)used, double(all[all.size() / 2]),
                   inside.numel() ? inside.median().item<double>() : 0.0);
     report = buf;
     return r0;
