@@ -39,6 +39,8 @@ struct StackCocOptions {
     int min_local_edges = 3;      // edges within the spread window a pixel's floor averages
     int floor_fill_cells = 2;     // empty floor cells take their measured neighbours' up to this far
     double floor_rel_max = 1.0;   // edges count where the frame is within this of its sharpest view
+    double floor_gate_lo = 1.5;   // the floor applies where no frame sees the point blurrier than
+    double floor_gate_hi = 2.5;   //   its sharpest view by gate_lo, and not past gate_hi
     double floor_max = 4.5;       // a layer whose floor's median reads more keeps no floor
     double floor_lo = 0.75;       // r0 under floor_lo reads 0, from floor_lo to floor_hi it ramps
     double floor_hi = 1.5;        //   up to r0 (a sharp composite's edges read 0-0.75 px)
