@@ -73,10 +73,10 @@ std::vector<double> parse_times(const std::string& s) {
 
 int bench_fit(int argc, char** argv) {
     Args a(argc, argv, 3, {"oracle-coc", "oracle-mask"});
-    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "oracle-mask", "mask", "at", "csv", "work", "seed"});
+    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "coc", "oracle-mask", "mask", "at", "csv", "work", "seed"});
     if (!a.has("clip"))
         throw Error("usage: refocus bench fit --clip <synth-dir> --preset fast|paper|perframe "
-                    "[--minutes M] [--oracle-coc] [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv]");
+                    "[--minutes M] [--oracle-coc | --coc <pattern>] [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv]");
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
@@ -97,6 +97,7 @@ int bench_fit(int argc, char** argv) {
     s.fit.iters = a.get_int("iters", 0);
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
     if (oracle) s.setup.coc_path = (clip / "coc_%04d.exr").string();
+    if (a.has("coc")) s.setup.coc_path = a.get("coc");  // radius maps to try (e.g. the truth scaled)
     const bool oracle_mask = a.has("oracle-mask");
     if (oracle_mask) s.setup.mask_path = (clip / "alpha_%04d.png").string();
     if (a.has("mask")) s.setup.mask_path = a.get("mask");  // masks to try (e.g. bench motion --dump)
@@ -110,7 +111,7 @@ int bench_fit(int argc, char** argv) {
     const double in_t = gt.size() > 1 ? tpsnr(input, gt) : 0.0;
     std::printf("clip %s (%dx%d, %d frames), preset %s, radius %s, masks %s\n", clip.string().c_str(),
                 project.width, project.height, project.frames, preset.c_str(),
-                oracle ? "ground truth (--coc)" : "estimated",
+                oracle ? "ground truth (--coc)" : a.has("coc") ? a.get("coc").c_str() : "estimated",
                 oracle_mask ? "ground-truth alpha (--mask)" : a.has("mask") ? a.get("mask").c_str() : "automatic");
     std::printf("input vs ground truth: PSNR %.2f dB  SSIM %.4f  tPSNR %.2f dB\n", in_psnr, in_ssim, in_t);
     std::printf("%8s %7s %9s %7s %9s %12s %7s\n", "minutes", "step", "PSNR", "SSIM", "tPSNR", "reblur PSNR",
@@ -148,7 +149,7 @@ int bench_fit(int argc, char** argv) {
                "frames_done,input_ssim\n";
         for (const Row& x : rows)
             csv << clip.filename().string() << "," << preset << ","
-                << (oracle ? "oracle" : "estimated") << (oracle_mask ? "+mask" : "")
+                << (oracle ? "oracle" : a.has("coc") ? "given" : "estimated") << (oracle_mask ? "+mask" : "")
                 << "," << x.minutes << "," << x.step << "," << x.psnr << "," << x.ssim << ","
                 << x.tpsnr << "," << x.reblur_psnr << "," << x.in_psnr << "," << x.in_tpsnr << ","
                 << x.frames_done << "," << x.in_ssim << "\n";

@@ -240,7 +240,9 @@ TEST_CASE("focal-stack radius on a pan with fixed focus: content entering the fr
     // entering the pan was compared with smeared border pixels and read several px of blur; the
     // subject, whose automatic mask holds wall texture, read up to the largest radius tested.
     // At this size (8 frames of 128x72, the wall 0.2-1.5 px) the floor has few edges to go by
-    // and overshoots by up to 1.25 px at 1% of the pixels.
+    // and overshoots by up to 1.62 px at 1% of the pixels (1.25 while the floor held within 2
+    // cells of its edges; it holds within 4 since the sixteenth session, which gained 0.66 dB
+    // at 320x180, where the wall's 99th percentile of overshoot stayed 1.99 px).
     TinyClip c = make_tiny("fit_stack_pan", "pan", "128x72");
     Project p = Project::load(c.project);
     PrepareLog log;
@@ -258,7 +260,7 @@ TEST_CASE("focal-stack radius on a pan with fixed focus: content entering the fr
     auto p99_of = [](std::vector<float>& v) { std::sort(v.begin(), v.end()); return v[v.size() * 99 / 100]; };
     const float p99 = p99_of(over);
     MESSAGE("pan: 99th percentile of (estimated - true radius) " << p99 << " px; wall " << p99_of(over_wall) << ", subject " << p99_of(over_edge));
-    CHECK(p99 < 1.5f);
+    CHECK(p99 < 1.75f);
 }
 
 TEST_CASE("the stack's absolute floor: a wall and a subject never in focus read their blur, not 0") {
@@ -808,6 +810,10 @@ TEST_CASE("a moving camera fits a 2x atlas: detail seen at many sub-pixel phases
         s = *d;  // an estimated radius: its errors would be fitted too
         CHECK(choose_atlas_scale(s, false).find("estimated") != std::string::npos);
         CHECK(s.atlas_scale == 1);
+        s = *d;  // ... unless focus never changed: the floor, one surface that all frames share
+        s.fixed_focus_share = 0.95;
+        CHECK(choose_atlas_scale(s, false).find("2x") != std::string::npos);
+        CHECK(s.atlas_scale == 2);
     }
     // Texels sit on the frame's pixel centres: the initial (fused) atlas renders each frame back
     // in place, at 2x as closely as at 1x.

@@ -32,6 +32,9 @@ struct FitData {
     torch::Tensor flow_valid; // [T-1,1,H,W] 1 where the flow is forward-backward consistent
     bool static_camera = true;
     bool has_subject = false;
+    // Share of the wall (one layer: the frame) whose estimated radius holds over the clip: focus
+    // never changed there, and the radius is the absolute floor (stack_coc.h). 0 with --coc.
+    double fixed_focus_share = 0;
     // Atlas texels per frame pixel (choose_atlas_scale, fit_setup.h; a checkpoint keeps its own).
     double atlas_scale = 1;
     // The subject's track as builds before the eighth session made it (mask centroids), for

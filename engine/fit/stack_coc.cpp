@@ -176,7 +176,10 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
                   // rack's subject: 40 edges reading 0.25 px gave a floor of 5.6 px).
                   .clamp(std::max(0.0, R.min().item<double>()), std::min(o.edge.rmax, R.max().item<double>()));
     // The surface holds where it was measured: within floor_fill_cells cells of a measured cell,
-    // fading to 0 (no evidence of blur) beyond.
+    // fading to 0 (no evidence of blur) beyond. Synth pan, 600 steps: 2 cells 22.15 dB, 4 and 8
+    // cells 22.81 (the wall under the subject's path, where few edges pass, kept no floor;
+    // the wall's 99th percentile of overshoot stays 1.99 px). On a tiny clip (synth pan, 128x72,
+    // 8 frames) 4 cells overshoot by 1.62 px at the 99th percentile, 2 cells by 1.25.
     auto near = has;
     for (int k = 0; k < o.floor_fill_cells; ++k)
         near = F::max_pool2d(near, F::MaxPool2dFuncOptions(3).stride(1).padding(1));
@@ -188,8 +191,14 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     r0 = r0 * support;
     const double lo = o.floor_lo, hi = std::max(o.floor_hi, lo + 1e-3);
     r0 = torch::where(r0 >= hi, r0, ((r0 - lo) / (hi - lo)).clamp(0, 1) * hi);
-    r0 = r0 * (own > 0.5).to(torch::kFloat32);
     auto inside = r0.masked_select(own > 0.5);
+    // The floor covers the layer's own canvas and its rim: `own` stops contrast_window + 1 px
+    // short of the canvas border, and those rows and columns kept no floor (synth pan: the frame's
+    // bottom rows read 0.3 px for 3.7).
+    const int rim = o.contrast_window + 1 + o.window;
+    r0 = r0 * F::max_pool2d((own > 0.5).to(torch::kFloat32).view({1, 1, Hc, Wc}),
+                            F::MaxPool2dFuncOptions(2 * rim + 1).stride(1).padding(rim))
+                  .view({Hc, Wc});
     // Past floor_max the readings are not to be trusted: a wall blurred 6-9 px carries its
     // texture (glyphs, checkers of 1-6 px) inside every profile's window, and only the edges
     // that look narrower pass (synth walkout: the wall read 5.3-6.0 px for 7.5-9.0; fitted with
@@ -218,7 +227,7 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
 // subject passing over a wall pixel does not become that pixel's "sharpest view", and the wall
 // does not lend the subject its radius.
 torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, const torch::Tensor& region,
-                           const StackCocOptions& o, std::string* report) {
+                           const StackCocOptions& o, std::string* report, double* fixed_share = nullptr) {
     const int64_t T = d.frames, H = d.height, W = d.width;
     // 1. Every frame on a canvas in reference coordinates that covers all of them (canvas pixel
     //    p reads frame t at to_canvas_t⁻¹ p). A canvas of the reference frame's own size, read
@@ -333,17 +342,34 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
         // with the gate at 1.5-2.5 px, tripod 29.97 and hunt 22.36 (as without a floor), pan
         // 21.27 (92% of its wall keeps the floor; at 0.75-1.5 px, 82% and 21.10).
         auto relmax = torch::zeros({1, 1, Hc, Wc});
+        // Views near the other layer do not count where the point has views clear of it: there
+        // the other layer's blurred rim (a subject at 7 px over a wall) passes over the point
+        // and reads as a change of focus. Synth pan: the wall the subject crossed kept no floor.
+        auto relmax_clear = torch::zeros({1, 1, Hc, Wc}), clear_seen = torch::zeros({1, 1, Hc, Wc});
         for (int64_t t = 0; t < T; ++t) {
             auto inv = torch::inverse(to_canvas[t]);
-            relmax = torch::maximum(relmax, warp(out[t].view({1, 1, H, W}), inv, Hc, Wc, true));
+            auto rel = warp(out[t].view({1, 1, H, W}), inv, Hc, Wc, true);
+            relmax = torch::maximum(relmax, rel);
+            if (region.defined()) {
+                auto clear = warp(erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0), o.floor_gate_clear_px),
+                                  inv, Hc, Wc, true)
+                                 .gt(0.999)
+                                 .to(torch::kFloat32);
+                relmax_clear = torch::maximum(relmax_clear, rel * clear);
+                clear_seen = torch::maximum(clear_seen, clear);
+            }
         }
+        if (region.defined()) relmax = torch::where(clear_seen > 0.5, relmax_clear, relmax);
         const double glo = o.floor_gate_lo, ghi = std::max(o.floor_gate_hi, glo + 1e-3);
         auto gate = ((ghi - relmax) / (ghi - glo)).clamp(0, 1);
         floor = floor * gate;
+        const double share = floor.max().item<double>() > 0
+                                 ? gate.view({Hc, Wc}).masked_select(own_seen > 0.5).gt(0.5).to(torch::kFloat32).mean().item<double>()
+                                 : 0.0;
+        if (fixed_share) *fixed_share = share;
         if (report) {
             char buf[96];
-            std::snprintf(buf, sizeof buf, ", applied where focus never changed (%.0f%% of the layer)",
-                          100.0 * gate.view({Hc, Wc}).masked_select(own_seen > 0.5).gt(0.5).to(torch::kFloat32).mean().item<double>());
+            std::snprintf(buf, sizeof buf, ", applied where focus never changed (%.0f%% of the layer)", 100.0 * share);
             *report = line + (floor.max().item<double>() > 0 ? std::string(buf) : std::string());
         }
         for (int64_t t = 0; t < T; ++t) {
@@ -411,12 +437,20 @@ void split_radius_by_layer(FitData& d, int margin) {
 
 torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o_in, StackCocReport* report) {
     StackCocOptions o = o_in;
-    if (const char* e = std::getenv("REFOCUS_ABSOLUTE_BLUR")) o.absolute = std::atoi(e) != 0;  // A/B hook
+    // A/B hooks (fit_setup.cpp keys the cached estimate by them).
+    if (const char* e = std::getenv("REFOCUS_ABSOLUTE_BLUR")) o.absolute = std::atoi(e) != 0;
+    const std::pair<const char*, double*> hooks[] = {{"REFOCUS_FLOOR_MAX", &o.floor_max},
+                                                     {"REFOCUS_FLOOR_LO", &o.floor_lo},
+                                                     {"REFOCUS_FLOOR_HI", &o.floor_hi}};
+    for (const auto& [name, v] : hooks)
+        if (const char* e = std::getenv(name)) *v = std::atof(e);
+    if (const char* e = std::getenv("REFOCUS_FILL_CELLS")) o.floor_fill_cells = std::atoi(e);
+    if (const char* e = std::getenv("REFOCUS_GATE_CLEAR")) o.floor_gate_clear_px = std::atoi(e);
     std::string line_bg, line_fg;
     torch::NoGradGuard no_grad;
     const bool layered = d.has_subject && d.mask.defined();
     if (!layered) {
-        auto r = layer_radius(d, d.to_ref, {}, o, &line_bg);
+        auto r = layer_radius(d, d.to_ref, {}, o, &line_bg, report ? &report->fixed_focus_share : nullptr);
         if (report) report->summary = o.absolute ? "absolute floor: " + line_bg : "relative only";
         return r;
     }
@@ -424,7 +458,7 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
     // track (a moving subject is not where the wall was: compared pixel by pixel across frames it
     // reads as blur; measured on the synth rack clip: 3-3.7 px on a subject in focus).
     auto mask = (d.mask > 0.5).to(torch::kFloat32);
-    auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o, &line_bg);
+    auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o, &line_bg, report ? &report->fixed_focus_share : nullptr);
     std::vector<double> vx, vy, sc;
     subject_track(d, vx, vy, &sc);
     std::vector<torch::Tensor> mats;

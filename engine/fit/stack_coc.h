@@ -37,10 +37,12 @@ struct StackCocOptions {
     EdgeBlurOptions edge;
     int min_edges = 20;           // fewer accepted edges in a layer's composite: no floor there
     int min_local_edges = 3;      // edges within the spread window a pixel's floor averages
-    int floor_fill_cells = 2;     // empty floor cells take their measured neighbours' up to this far
+    int floor_fill_cells = 4;     // empty floor cells take their measured neighbours' up to this far
     double floor_rel_max = 1.0;   // edges count where the frame is within this of its sharpest view
     double floor_gate_lo = 1.5;   // the floor applies where no frame sees the point blurrier than
     double floor_gate_hi = 2.5;   //   its sharpest view by gate_lo, and not past gate_hi
+    int floor_gate_clear_px = 12; // the gate reads only views this far inside the layer's region
+                                  //   (where a point has such views): the other layer's rim
     double floor_max = 4.5;       // a layer whose floor's median reads more keeps no floor
     double floor_lo = 0.75;       // r0 under floor_lo reads 0, from floor_lo to floor_hi it ramps
     double floor_hi = 1.5;        //   up to r0 (a sharp composite's edges read 0-0.75 px)
@@ -49,6 +51,7 @@ struct StackCocOptions {
 // What the estimate found, for the log.
 struct StackCocReport {
     std::string summary;  // e.g. "absolute floor: wall 851 edges (median 1.25 px), subject ..."
+    double fixed_focus_share = 0;  // the wall's (one layer: the frame's) share with the floor applied
 };
 
 // [T,H,W] radius maps for d.input registered by d.to_ref. Needs at least 2 frames.
