@@ -126,8 +126,9 @@ std::string choose_atlas_scale(FitData& d, bool radius_given) {
     std::string why;
     d.atlas_scale = 1;
     if (!radius_given && d.fixed_focus_share < 0.8) {
-        why = "radius estimated from the clip, focus changed over " + fmt2(100 * (1 - d.fixed_focus_share)) +
-              "% of the wall: a finer atlas would fit its errors";
+        why = "radius estimated from the clip, held by the fixed-focus floor on " +
+              std::to_string(int(std::lround(100 * d.fixed_focus_share))) +
+              "% of the wall (2x needs 80%): a finer atlas would fit its errors";
     } else if (d.static_camera) {
         why = "static camera: each atlas pixel is seen at one sub-pixel phase";
     } else if (in_focus < 0.05) {
