@@ -54,7 +54,7 @@ std::string absolute_key() {  // the A/B hooks of stack_coc.cpp change the resul
     const char* e = std::getenv("REFOCUS_ABSOLUTE_BLUR");
     std::string key = e && std::atoi(e) == 0 ? "/relative" : "/absolute";
     for (const char* name : {"REFOCUS_FLOOR_MAX", "REFOCUS_FILL_CELLS", "REFOCUS_FLOOR_LO", "REFOCUS_FLOOR_HI",
-                             "REFOCUS_GATE_CLEAR"})
+                             "REFOCUS_GATE_CLEAR", "REFOCUS_SPECTRAL_BLUR"})
         if (const char* v = std::getenv(name)) key += std::string("/") + name + "=" + v;
     return key;
 }
@@ -64,7 +64,7 @@ std::string stack_key(const Project& project, const FitData& d) {
     // The radius is measured in the kernel's units: a pillbox's differs from the disk's.
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
            (d.static_camera ? "/static" : "/moving") +
-           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v8" + absolute_key();
+           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v9" + absolute_key();
 }
 
 fs::path stack_frame_path(const Project& project, int t) {

@@ -8,6 +8,7 @@
 #include <cstdlib>
 
 #include "fit/atlas_geometry.h"
+#include "fit/spectral_blur.h"
 #include "fit/tensor_image.h"
 #include "ops/lens_blur.h"
 #include "prepare/coc.h"
@@ -75,58 +76,74 @@ torch::Tensor fill_from(const torch::Tensor& v, const torch::Tensor& w) {
 // Not the luma-guided filter the relative radius is spread with: its locally linear model in
 // luma turned sparse readings into a radius that followed the texture (synth pan, 600 steps:
 // the in-focus rows' noise panel came out speckled, a star rang).
-torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, const torch::Tensor& region,
-                             const std::vector<torch::Tensor>& rel, const torch::Tensor& own, const StackCocOptions& o,
-                             std::string& report) {
-    const int64_t Hc = own.size(0), Wc = own.size(1), H = d.height, W = d.width;
-    // Readings binned into cells of `cell` px on the canvas; each cell's median (robust to the
-    // few textures whose edges read a false blur the same way in every frame), where it holds at
-    // least min_local_edges readings; bilinear between cell centres, the rest filled from the
-    // nearest cells (push-pull).
-    const int cell = std::max<int>(o.spread_px, std::min(Hc, Wc) / 15);
-    const int64_t Gh = (Hc + cell - 1) / cell, Gw = (Wc + cell - 1) / cell;
-    std::vector<std::vector<float>> bins(Gh * Gw);
-    int64_t measured = 0, used = 0, candidates = 0;
+// Readings of the composite's absolute blur r0 binned into cells of `cell` px on the canvas.
+struct FloorBins {
+    int cell = 1;
+    int64_t Gh = 0, Gw = 0;
+    std::vector<std::vector<float>> bins;
     std::vector<float> all;
-    for (int64_t t = 0; t < d.frames; ++t) {
-        const auto& f = d.input[t];
-        auto luma = 0.2126 * f[0] + 0.7152 * f[1] + 0.0722 * f[2];
-        auto allowed = region.defined() ? (region[t][0] > 0.5) : torch::ones({H, W}, torch::kBool);
-        const EdgeBlurSamples e = measure_edge_blur(luma, allowed, d.blur, o.edge);
-        measured += e.size();
-        candidates += e.candidates;
-        if (e.size() == 0) continue;
-        auto xi = e.x.to(torch::kLong), yi = e.y.to(torch::kLong);
-        auto r_rel = rel[t].index({yi, xi});
-        // The floor dominates the reading (r0 >= 0.87 e), or the frame is near its sharpest view.
-        auto keep = (r_rel < o.floor_rel_max) | (r_rel <= 0.5 * e.radius);
-        auto r0 = (e.radius.pow(2) - r_rel.pow(2)).clamp_min(0).sqrt().masked_select(keep).contiguous();
-        auto pts = torch::stack({e.x.masked_select(keep), e.y.masked_select(keep), torch::ones_like(r0)}).to(torch::kFloat64);
-        auto q = torch::matmul(to_canvas[t].to(torch::kFloat64), pts);
-        auto cx = (q[0] / q[2]).contiguous(), cy = (q[1] / q[2]).contiguous();
-        const double* px = cx.data_ptr<double>();
-        const double* py = cy.data_ptr<double>();
-        const float* pr = r0.data_ptr<float>();
-        for (int64_t i = 0; i < r0.numel(); ++i) {
-            const int64_t gx = int64_t(std::floor(px[i] / cell)), gy = int64_t(std::floor(py[i] / cell));
-            if (gx < 0 || gy < 0 || gx >= Gw || gy >= Gh) continue;
-            bins[gy * Gw + gx].push_back(pr[i]);
-            all.push_back(pr[i]);
-            ++used;
-        }
+    int64_t used = 0;
+};
+
+FloorBins floor_bins(int64_t Hc, int64_t Wc, const StackCocOptions& o) {
+    FloorBins b;
+    b.cell = std::max<int>(o.spread_px, std::min(Hc, Wc) / 15);
+    b.Gh = (Hc + b.cell - 1) / b.cell;
+    b.Gw = (Wc + b.cell - 1) / b.cell;
+    b.bins.resize(b.Gh * b.Gw);
+    return b;
+}
+
+// Frame t's readings of absolute radius e at (x, y): where the frame's relative radius there
+// (the stack's) is rel, r0 = sqrt(e² − rel²); placed on the canvas by to_canvas_t.
+void add_readings(FloorBins& b, const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& e,
+                  const torch::Tensor& rel_t, const torch::Tensor& to_canvas_t, const StackCocOptions& o) {
+    if (e.numel() == 0) return;
+    auto xi = x.to(torch::kLong), yi = y.to(torch::kLong);
+    auto r_rel = rel_t.index({yi, xi});
+    // The floor dominates the reading (r0 >= 0.87 e), or the frame is near its sharpest view.
+    auto keep = (r_rel < o.floor_rel_max) | (r_rel <= 0.5 * e);
+    auto r0 = (e.pow(2) - r_rel.pow(2)).clamp_min(0).sqrt().masked_select(keep).contiguous();
+    auto pts = torch::stack({x.masked_select(keep), y.masked_select(keep), torch::ones_like(r0)}).to(torch::kFloat64);
+    auto q = torch::matmul(to_canvas_t.to(torch::kFloat64), pts);
+    auto cx = (q[0] / q[2]).contiguous(), cy = (q[1] / q[2]).contiguous();
+    const double* px = cx.data_ptr<double>();
+    const double* py = cy.data_ptr<double>();
+    const float* pr = r0.data_ptr<float>();
+    for (int64_t i = 0; i < r0.numel(); ++i) {
+        const int64_t gx = int64_t(std::floor(px[i] / b.cell)), gy = int64_t(std::floor(py[i] / b.cell));
+        if (gx < 0 || gy < 0 || gx >= b.Gw || gy >= b.Gh) continue;
+        b.bins[gy * b.Gw + gx].push_back(pr[i]);
+        b.all.push_back(pr[i]);
+        ++b.used;
     }
-    char buf[200];
-    if (used < o.min_edges) {
-        std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable: no floor", (long long)measured, (long long)used);
-        report = buf;
-        return torch::zeros({Hc, Wc});
-    }
+}
+
+std::string fmt_px(double v) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%.1f px", v);
+    return b;
+}
+
+float median_of(std::vector<float> v) {
+    if (v.empty()) return 0.0f;
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+}
+
+// The floor surface [Hc,Wc] from binned readings: each cell's median where it holds at least
+// min_local readings (robust to the few textures whose edges read a false blur the same way in
+// every frame), a robust quadratic over the cells, held within floor_fill_cells cells of a
+// measured one, the small-radius ramp, and the layer's rim. `*median` gets its median over `own`.
+torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_px, bool plane, int64_t Hc, int64_t Wc,
+                            const torch::Tensor& own, const StackCocOptions& o, double* median) {
+    const int cell = b.cell;
+    const int64_t Gh = b.Gh, Gw = b.Gw;
     auto med = torch::zeros({1, 1, Gh, Gw}), has = torch::zeros({1, 1, Gh, Gw});
     for (int64_t i = 0; i < Gh * Gw; ++i) {
-        auto& b = bins[i];
-        if (int64_t(b.size()) < o.min_local_edges) continue;
-        std::nth_element(b.begin(), b.begin() + b.size() / 2, b.end());
-        med.view({-1})[i] = b[b.size() / 2];
+        auto& v = b.bins[i];
+        if (v.empty() || int64_t(v.size()) < min_local) continue;
+        med.view({-1})[i] = median_of(v);
         has.view({-1})[i] = 1.0f;
     }
     // The floor is a smooth surface over the layer: a quadratic in canvas coordinates fitted to
@@ -144,9 +161,13 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
             cu.push_back(((gx + 0.5) * cell) / Wc - 0.5);
             cv.push_back(((gy + 0.5) * cell) / Hc - 0.5);
             cr.push_back(med.view({-1})[i].item<float>());
-            cw.push_back(std::sqrt(double(bins[i].size())));
+            cw.push_back(std::sqrt(double(b.bins[i].size())));
         }
     const int64_t n = cr.size();
+    if (n == 0) {
+        *median = 0;
+        return torch::zeros({Hc, Wc});
+    }
     auto U = torch::tensor(cu, torch::kFloat64), V = torch::tensor(cv, torch::kFloat64);
     auto R = torch::tensor(cr, torch::kFloat64), W0 = torch::tensor(cw, torch::kFloat64);
     auto basis = [](const torch::Tensor& u, const torch::Tensor& v) {
@@ -155,7 +176,9 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     auto A = basis(U, V);
     // Quadratic, plane or constant by the number of measured cells: a quadratic through a few
     // cells of a tiny clip (synth pan at 128x72, 8 frames) bent the wall's floor the wrong way.
-    const int64_t P = n >= 40 ? 6 : n >= 10 ? 3 : 1;
+    // A plane only (`plane`) for the tile spectra's floor: a planar surface's inverse depth is
+    // affine in image coordinates, and so its blur where it is never in focus (seed 001 eq. 1.12).
+    const int64_t P = n >= 40 && !plane ? 6 : n >= 10 ? 3 : 1;
     A = A.narrow(1, 0, P);
     auto wts = W0.clone();
     torch::Tensor coef;
@@ -167,21 +190,31 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
         auto z = (res / (4.685 * mad)).clamp(-1, 1);
         wts = W0 * (1 - z * z).pow(2);
     }
+    // How much a plane changes over reach_px: its gradient (per px) times reach_px.
+    double slope_reach = 0;
+    if (P == 3) {
+        const double gu = coef[1].item<double>() / Wc, gv = coef[2].item<double>() / Hc;
+        slope_reach = std::sqrt(gu * gu + gv * gv) * reach_px;
+    }
     auto ys = (torch::arange(Hc, torch::kFloat64) + 0.5) / double(Hc) - 0.5;
     auto xs = (torch::arange(Wc, torch::kFloat64) + 0.5) / double(Wc) - 0.5;
     auto g = torch::meshgrid({ys, xs}, "ij");
     auto r0 = torch::matmul(basis(g[1].flatten(), g[0].flatten()).narrow(1, 0, P), coef)
                   .view({Hc, Wc}).to(torch::kFloat32)
                   // Within the cells' own range: a surface through few cells extrapolates (synth
-                  // rack's subject: 40 edges reading 0.25 px gave a floor of 5.6 px).
-                  .clamp(std::max(0.0, R.min().item<double>()), std::min(o.edge.rmax, R.max().item<double>()));
+                  // rack's subject: 40 edges reading 0.25 px gave a floor of 5.6 px). A plane
+                  // through tiles' centres (32-64 px from the border) may reach their half-size
+                  // further: synth walkout's top rows read 8.5 px for 9.2 when held to the cells'.
+                  .clamp(std::max(0.0, R.min().item<double>() - (plane ? slope_reach : 0.0)),
+                         std::min(rmax, R.max().item<double>() + (plane ? slope_reach : 0.0)));
     // The surface holds where it was measured: within floor_fill_cells cells of a measured cell,
     // fading to 0 (no evidence of blur) beyond. Synth pan, 600 steps: 2 cells 22.15 dB, 4 and 8
     // cells 22.81 (the wall under the subject's path, where few edges pass, kept no floor;
     // the wall's 99th percentile of overshoot stays 1.99 px). On a tiny clip (synth pan, 128x72,
     // 8 frames) 4 cells overshoot by 1.62 px at the 99th percentile, 2 cells by 1.25.
     auto near = has;
-    for (int k = 0; k < o.floor_fill_cells; ++k)
+    // A reading stands for reach_px around its place (a tile's half-size), and holds that much further.
+    for (int k = 0; k < o.floor_fill_cells + (reach_px + cell - 1) / cell; ++k)
         near = F::max_pool2d(near, F::MaxPool2dFuncOptions(3).stride(1).padding(1));
     auto support = F::interpolate(near, F::InterpolateFuncOptions()
                                             .size(std::vector<int64_t>{Gh * cell, Gw * cell})
@@ -192,33 +225,107 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     const double lo = o.floor_lo, hi = std::max(o.floor_hi, lo + 1e-3);
     r0 = torch::where(r0 >= hi, r0, ((r0 - lo) / (hi - lo)).clamp(0, 1) * hi);
     auto inside = r0.masked_select(own > 0.5);
+    *median = inside.numel() ? inside.median().item<double>() : 0.0;
     // The floor covers the layer's own canvas and its rim: `own` stops contrast_window + 1 px
     // short of the canvas border, and those rows and columns kept no floor (synth pan: the frame's
     // bottom rows read 0.3 px for 3.7).
     const int rim = o.contrast_window + 1 + o.window;
-    r0 = r0 * F::max_pool2d((own > 0.5).to(torch::kFloat32).view({1, 1, Hc, Wc}),
-                            F::MaxPool2dFuncOptions(2 * rim + 1).stride(1).padding(rim))
-                  .view({Hc, Wc});
-    // Past floor_max the readings are not to be trusted: a wall blurred 6-9 px carries its
-    // texture (glyphs, checkers of 1-6 px) inside every profile's window, and only the edges
-    // that look narrower pass (synth walkout: the wall read 5.3-6.0 px for 7.5-9.0; fitted with
-    // that floor, 600 steps, 16.94 -> 14.84 dB, every band of the wall below the input). A layer
-    // whose floor reads more than that keeps the stack's relative radius.
-    const double floor_median = inside.numel() ? inside.median().item<double>() : 0.0;
-    if (floor_median > o.floor_max) {
-        std::nth_element(all.begin(), all.begin() + all.size() / 2, all.end());
-        std::snprintf(buf, sizeof buf, "%lld of %lld edges measured, %lld usable (median %.2f px): floor median %.2f px "
-                      "is past what isolated edges measure (%.1f px), withdrawn",
-                      (long long)measured, (long long)candidates, (long long)used, double(all[all.size() / 2]), floor_median, o.floor_max);
+    return r0 * F::max_pool2d((own > 0.5).to(torch::kFloat32).view({1, 1, Hc, Wc}),
+                              F::MaxPool2dFuncOptions(2 * rim + 1).stride(1).padding(rim))
+                    .view({Hc, Wc});
+}
+
+// The composite's absolute blur r0 [Hc,Wc] (edge_blur.h). Each frame's isolated edges are
+// measured where the frame holds the layer; an edge of absolute radius e at a pixel whose
+// relative radius (the stack's) is rel says r0 = sqrt(e² − rel²) there. Only edges seen within
+// floor_rel_max of their sharpest view count: for a point seen far out of focus that difference
+// of squares is all noise (e = 6 ± 1 against rel = 5 reads r0 = 0-4.8). The readings of all
+// frames, placed on the canvas, are binned in cells and made a smooth surface (floor_surface).
+// The frames, not the composite: the composite is resampled and blended, which blurs it by
+// 0.5-1 px (synth pan's in-focus rows: frames 0-0.4 px, composite 0.75-1.25), and the frames
+// hold 30x the edges. Below floor_lo r0 reads 0 and ramps to r0 at floor_hi (an edge in focus
+// reads 0-0.75 px). Not the luma-guided filter the relative radius is spread with: its locally
+// linear model in luma turned sparse readings into a radius that followed the texture (synth
+// pan, 600 steps: the in-focus rows' noise panel came out speckled, a star rang).
+// Where the edges' floor reads past floor_max, the blur is read from tile spectra instead
+// (spectral_blur.h).
+torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, const torch::Tensor& region,
+                             const std::vector<torch::Tensor>& rel, const torch::Tensor& own, const StackCocOptions& o,
+                             std::string& report, bool* spectral) {
+    *spectral = false;
+    const int64_t Hc = own.size(0), Wc = own.size(1), H = d.height, W = d.width;
+    FloorBins edges = floor_bins(Hc, Wc, o);
+    int64_t measured = 0, candidates = 0;
+    std::vector<torch::Tensor> lumas;
+    for (int64_t t = 0; t < d.frames; ++t) {
+        const auto& f = d.input[t];
+        lumas.push_back(0.2126 * f[0] + 0.7152 * f[1] + 0.0722 * f[2]);
+        auto allowed = region.defined() ? (region[t][0] > 0.5) : torch::ones({H, W}, torch::kBool);
+        const EdgeBlurSamples e = measure_edge_blur(lumas.back(), allowed, d.blur, o.edge);
+        measured += e.size();
+        candidates += e.candidates;
+        if (e.size()) add_readings(edges, e.x, e.y, e.radius, rel[t], to_canvas[t], o);
+    }
+    char buf[400];
+    if (edges.used < o.min_edges) {
+        std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable: no floor", (long long)measured,
+                      (long long)edges.used);
         report = buf;
         return torch::zeros({Hc, Wc});
     }
-    std::nth_element(all.begin(), all.begin() + all.size() / 2, all.end());
+    double floor_median = 0;
+    auto r0 = floor_surface(edges, o.min_local_edges, o.edge.rmax, 0, false, Hc, Wc, own, o, &floor_median);
     std::snprintf(buf, sizeof buf, "%lld of %lld edges measured, %lld usable (median %.2f px), floor median %.2f px",
-                  (long long)measured, (long long)candidates, (long long)used, double(all[all.size() / 2]),
-                  inside.numel() ? inside.median().item<double>() : 0.0);
+                  (long long)measured, (long long)candidates, (long long)edges.used, double(median_of(edges.all)),
+                  floor_median);
     report = buf;
-    return r0;
+    if (floor_median <= o.spectral_from) return r0;
+    // Large blur: edges read it low. A wall blurred 6-9 px carries its texture (glyphs, checkers of
+    // 1-6 px) inside every profile's window, and only the edges that look narrower pass (synth
+    // walkout: the wall read 5.3-6.0 px for 7.5-9.0; fitted with that floor, 600 steps, 16.94 ->
+    // 14.84 dB, every band of the wall below the input; 8 frames of it read 4.1 px for 7.2). The
+    // blur is then read from the spectra of tiles clear of the other layer (spectral_blur.h),
+    // which needs a large blur to be told from texture; where they read past floor_max, their
+    // floor replaces the edges'. Otherwise the edges' floor stands up to floor_max, and past it
+    // there is none.
+    FloorBins tiles = floor_bins(Hc, Wc, o);
+    int64_t tested = 0;
+    if (o.spectral) {
+        for (int64_t t = 0; t < d.frames; ++t) {
+            auto allowed = region.defined()
+                               ? erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0), o.floor_gate_clear_px)[0][0] > 0.5
+                               : torch::ones({H, W}, torch::kBool);
+            const SpectralBlurSamples s = measure_spectral_blur(lumas[t], allowed, d.blur, o.spectral_blur);
+            tested += s.tiles;
+            // A tile reading under floor_max contradicts the edges: a panel of checkers or a
+            // sunburst, whose harmonics a small blur explains better (synth walkout: 1.4-2 px
+            // on its bottom row of panels, blurred 5.5-6).
+            auto large = s.radius > o.floor_max;
+            if (s.size())
+                add_readings(tiles, s.x.masked_select(large), s.y.masked_select(large), s.radius.masked_select(large),
+                             rel[t], to_canvas[t], o);
+        }
+    }
+    double spectral_median = 0;
+    torch::Tensor r0s;
+    if (tiles.used >= o.min_tiles)
+        r0s = floor_surface(tiles, o.min_local_edges, o.spectral_blur.rmax,
+                            std::max(o.spectral_blur.tile_h, o.spectral_blur.tile_w) / 2, true, Hc, Wc, own, o,
+                            &spectral_median);
+    std::snprintf(buf, sizeof buf, "; tile spectra: %lld of %lld tiles read (median %.2f px), floor median %.2f px",
+                  (long long)tiles.used, (long long)tested, double(median_of(tiles.all)), spectral_median);
+    const std::string tiles_line = o.spectral ? std::string(buf) : std::string();
+    if (o.spectral && tiles.used >= o.min_tiles && spectral_median > o.floor_max) {
+        report += tiles_line + ", taken";
+        *spectral = true;
+        return r0s;
+    }
+    if (floor_median <= o.floor_max) {
+        report += tiles_line + ", the edges' taken";
+        return r0;
+    }
+    report += tiles_line + ": past what isolated edges measure (" + fmt_px(o.floor_max) + "), withdrawn";
+    return torch::zeros({Hc, Wc});
 }
 
 // One layer's pass. `to_ref` [T,3,3] float64 registers the layer (frame → reference);
@@ -332,7 +439,8 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
     }
     if (o.absolute) {  // absolute = the composite's own blur and the relative blur, moments added
         std::string line;
-        auto floor = absolute_floor(d, to_canvas, region, out, own_seen, o, line).view({1, 1, Hc, Wc});
+        bool spectral = false;
+        auto floor = absolute_floor(d, to_canvas, region, out, own_seen, o, line, &spectral).view({1, 1, Hc, Wc});
         // Only where focus never changed: a point some frame saw markedly blurrier than its
         // sharpest view (a focus change passed over it) had a sharpest view the stack trusts,
         // and a floor there only adds the readings' errors. Measured at 300-600 steps with the
@@ -346,6 +454,7 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
         // the other layer's blurred rim (a subject at 7 px over a wall) passes over the point
         // and reads as a change of focus. Synth pan: the wall the subject crossed kept no floor.
         auto relmax_clear = torch::zeros({1, 1, Hc, Wc}), clear_seen = torch::zeros({1, 1, Hc, Wc});
+        std::vector<torch::Tensor> rel_views, clear_views;
         for (int64_t t = 0; t < T; ++t) {
             auto inv = torch::inverse(to_canvas[t]);
             auto rel = warp(out[t].view({1, 1, H, W}), inv, Hc, Wc, true);
@@ -357,11 +466,35 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
                                  .to(torch::kFloat32);
                 relmax_clear = torch::maximum(relmax_clear, rel * clear);
                 clear_seen = torch::maximum(clear_seen, clear);
+                if (spectral) clear_views.push_back(clear * reg_valid[t]);
             }
+            if (spectral) rel_views.push_back(torch::where(reg_valid[t] > 0.5, rel, torch::full_like(rel, NAN)));
         }
         if (region.defined()) relmax = torch::where(clear_seen > 0.5, relmax_clear, relmax);
-        const double glo = o.floor_gate_lo, ghi = std::max(o.floor_gate_hi, glo + 1e-3);
+        if (spectral) {
+            // Under a floor read from tile spectra the relative readings' largest is the stack's
+            // error, not a change of focus: the edges found the layer's sharpest views blurred past
+            // floor_max nearly everywhere, which a focus pull onto it would not leave. Synth
+            // walkout's static wall read relative maxima of 4-8 px where the subject had passed
+            // and on panels whose frames differ in pixel phase, and the floor's holes there
+            // (the radius fell from 7-8 px to the relative 2-4) cost the fit 2.5 dB against the
+            // truth's. A change of focus shows in many views; the gate reads the views' quantile.
+            auto R = torch::stack(rel_views);  // [T,1,1,Hc,Wc], NaN where the frame does not cover
+            if (region.defined()) {
+                auto C = torch::stack(clear_views) > 0.5;
+                R = torch::where(C | (clear_seen < 0.5).unsqueeze(0), R, torch::full_like(R, NAN));
+            }
+            relmax = torch::nan_to_num(torch::nanquantile(R, o.floor_gate_quantile_spectral, 0), 0.0);
+        }
+        // Under a large floor the stack's relative readings are noisy by more than gate_lo (synth
+        // walkout, a wall blurred 5.4-9.3 px that never changes focus: 25% of it saw a view read
+        // past 2.5 px), and a change of focus that matters there is a large one: the gate's
+        // thresholds are at least floor_gate_rel_lo / _hi of the floor.
+        auto glo = torch::maximum(torch::full_like(floor, o.floor_gate_lo), o.floor_gate_rel_lo * floor);
+        auto ghi = torch::maximum(torch::full_like(floor, o.floor_gate_hi), o.floor_gate_rel_hi * floor);
+        ghi = torch::maximum(ghi, glo + 1e-3);
         auto gate = ((ghi - relmax) / (ghi - glo)).clamp(0, 1);
+        const auto ungated = floor;
         floor = floor * gate;
         const double share = floor.max().item<double>() > 0
                                  ? gate.view({Hc, Wc}).masked_select(own_seen > 0.5).gt(0.5).to(torch::kFloat32).mean().item<double>()
@@ -374,7 +507,17 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
         }
         for (int64_t t = 0; t < T; ++t) {
             auto f0 = warp(floor, to_canvas[t], H, W)[0][0].clamp_min(0);
-            out[t] = torch::sqrt(out[t] * out[t] + f0 * f0).clamp(0.0, o.rmax);
+            auto r = torch::sqrt(out[t] * out[t] + f0 * f0);
+            if (spectral) {
+                // Where the gate closes under a floor from tile spectra, the layer is still not
+                // sharper than the floor (its sharpest views were measured blurred past
+                // floor_max), and the relative reading there is the stack's error (synth walkout:
+                // where the subject, in focus at first, lent its edges to the wall's composite):
+                // the floor holds as a least radius, and the relative reading alone left holes of
+                // 0-3 px in a 6-8 px wall.
+                r = torch::maximum(r, warp(ungated, to_canvas[t], H, W)[0][0].clamp_min(0));
+            }
+            out[t] = r.clamp(0.0, o.rmax);
         }
     }
     return torch::stack(out).contiguous();
@@ -446,6 +589,7 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
         if (const char* e = std::getenv(name)) *v = std::atof(e);
     if (const char* e = std::getenv("REFOCUS_FILL_CELLS")) o.floor_fill_cells = std::atoi(e);
     if (const char* e = std::getenv("REFOCUS_GATE_CLEAR")) o.floor_gate_clear_px = std::atoi(e);
+    if (const char* e = std::getenv("REFOCUS_SPECTRAL_BLUR")) o.spectral = std::atoi(e) != 0;
     std::string line_bg, line_fg;
     torch::NoGradGuard no_grad;
     const bool layered = d.has_subject && d.mask.defined();

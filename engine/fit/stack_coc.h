@@ -19,6 +19,7 @@
 #include <string>
 
 #include "fit/edge_blur.h"
+#include "fit/spectral_blur.h"
 #include "fit/fit_model.h"
 
 namespace refocus {
@@ -41,9 +42,18 @@ struct StackCocOptions {
     double floor_rel_max = 1.0;   // edges count where the frame is within this of its sharpest view
     double floor_gate_lo = 1.5;   // the floor applies where no frame sees the point blurrier than
     double floor_gate_hi = 2.5;   //   its sharpest view by gate_lo, and not past gate_hi
+    double floor_gate_rel_lo = 0.4; // ... and not under these shares of the floor itself
+    double floor_gate_rel_hi = 0.6;
+    double floor_gate_quantile_spectral = 0.75;  // under a floor from tile spectra the gate reads
+                                                 //   this quantile of the views, not their largest
     int floor_gate_clear_px = 12; // the gate reads only views this far inside the layer's region
                                   //   (where a point has such views): the other layer's rim
-    double floor_max = 4.5;       // a layer whose floor's median reads more keeps no floor
+    double spectral_from = 3.5;   // a layer whose edges' floor reads more is read from tile
+                                  //   spectra (spectral_blur.h), whose floor is taken past floor_max
+    double floor_max = 4.5;       // ... else the edges' up to this, past it none
+    bool spectral = true;         // off: such a layer keeps no floor
+    SpectralBlurOptions spectral_blur;
+    int min_tiles = 20;           // fewer tiles read: no floor
     double floor_lo = 0.75;       // r0 under floor_lo reads 0, from floor_lo to floor_hi it ramps
     double floor_hi = 1.5;        //   up to r0 (a sharp composite's edges read 0-0.75 px)
 };

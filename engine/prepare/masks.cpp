@@ -342,6 +342,12 @@ std::vector<Image> automatic_masks(const std::vector<Image>& frames, const ClipF
         for (Image& a : adjacent_residuals(*flow, motion, w, h))
             adjacent.push_back(ww == w ? a
                                        : to_image(resized(as_mat(a), ww, wh, cv::INTER_LINEAR)));
+    // GrabCut (refine_masks) seeds its colour models from OpenCV's global RNG (thread-local, never
+    // reseeded): the masks, and everything fitted from them, depended on what the process had
+    // drawn before (two test cases run in one process gave another subject layer than either
+    // alone). From the RNG's initial state, as a fresh `refocus` process has it here, every clip's
+    // masks are the same anywhere.
+    cv::theRNG().state = 0xffffffffULL;
     std::vector<Image> m = refine_masks(small, threshold_masks(res, adjacent, o, px), o, px);
     if (o.vote_tau > 0) m = refine_masks(small, vote_masks(m, motion, w, h, o.vote_tau), o, px);
     for (Image& mi : m) {
