@@ -107,3 +107,19 @@ TEST_CASE("spectral blur: a tile too small for the largest kernel is an error") 
     o.tile_w = 16;
     CHECK_THROWS_AS(measure_spectral_blur(torch::zeros({32, 32}), torch::ones({32, 32}), pillbox(), o), Error);
 }
+
+TEST_CASE("spectral blur: a frame past max_width is read at a fraction of its size, readings scaled back") {
+    // 960x540, blurred by 21 px: read at 1/2 size (10.5 px there), places and radii in full-size px.
+    const int H = 540, W = 960;
+    auto tex = blur8(pink_texture(H, W, 11), 21.0);
+    auto allowed = torch::ones({H, W}, torch::kBool);
+    allowed.narrow(1, 0, 300).fill_(false);  // the left third not allowed
+    auto s = measure_spectral_blur(tex, allowed, pillbox());
+    REQUIRE(s.size() >= 20);
+    const double m = s.radius.median().item<double>();
+    MESSAGE("960x540 blurred by 21 px: median " << m << " px, " << s.size() << " of " << s.tiles << " tiles");
+    CHECK(std::abs(m - 21.0) < 0.05 * 21.0);
+    CHECK(s.tiles <= SpectralBlurOptions{}.max_tiles);
+    CHECK(s.x.min().item<double>() - 128 >= 300 - 1);  // a tile's half-width (64 px at 1/2 size) past the edge
+    CHECK(s.x.max().item<double>() + 128 <= W);
+}

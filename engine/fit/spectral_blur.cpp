@@ -1,5 +1,6 @@
 #include "fit/spectral_blur.h"
 
+#include <torch/nn/functional.h>
 #include <torch/torch.h>
 
 #include <cmath>
@@ -163,9 +164,21 @@ torch::Tensor spectral_blur_evidence(const torch::Tensor& tile, const std::vecto
     return evidence_over_exponents(P, K2, rings, o)[0];
 }
 
-SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma, const torch::Tensor& allowed,
+SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma_in, const torch::Tensor& allowed_in,
                                           const LensBlurParams& kernel, const SpectralBlurOptions& o) {
-    if (luma.dim() != 2) throw Error("spectral blur: luma must be [H,W]");
+    if (luma_in.dim() != 2) throw Error("spectral blur: luma must be [H,W]");
+    // A frame wider than max_width is read at 1/k of its size (area average; a pixel allowed where
+    // all its k×k are), and its readings scaled back by k: the tiles and radii above are sized
+    // for frames of 320-480 px, where a blur this estimator is for spans 4.5-16 px.
+    const int64_t k = std::max<int64_t>(1, (luma_in.size(1) + o.max_width - 1) / o.max_width);
+    torch::Tensor luma = luma_in, allowed = allowed_in;
+    if (k > 1) {
+        namespace F = torch::nn::functional;
+        auto pool = F::AvgPool2dFuncOptions(k).stride(k);
+        luma = F::avg_pool2d(luma_in.to(torch::kFloat64).view({1, 1, luma_in.size(0), luma_in.size(1)}), pool)[0][0];
+        allowed = F::avg_pool2d((allowed_in.to(torch::kFloat64) > 0.5).to(torch::kFloat64)
+                                    .view({1, 1, allowed_in.size(0), allowed_in.size(1)}), pool)[0][0] > 0.999;
+    }
     const int64_t H = luma.size(0), W = luma.size(1), th = o.tile_h, tw = o.tile_w;
     SpectralBlurSamples out;
     auto empty = torch::zeros({0}, torch::kFloat32);
@@ -177,8 +190,11 @@ SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma, const torch
     ii.narrow(0, 1, H).narrow(1, 1, W).copy_(bad.cumsum(0).cumsum(1));
     auto acc = ii.accessor<double, 2>();
     std::vector<int64_t> ys, xs;
-    for (int64_t y0 = 0; y0 + th <= H; y0 += o.stride)
-        for (int64_t x0 = 0; x0 + tw <= W; x0 += o.stride) {
+    // At most max_tiles positions: the step grows past `stride` on large frames.
+    int64_t stride = o.stride;
+    while (((H - th) / stride + 1) * ((W - tw) / stride + 1) > o.max_tiles) stride += o.stride / 2;
+    for (int64_t y0 = 0; y0 + th <= H; y0 += stride)
+        for (int64_t x0 = 0; x0 + tw <= W; x0 += stride) {
             const double n = acc[y0 + th][x0 + tw] - acc[y0][x0 + tw] - acc[y0 + th][x0] + acc[y0][x0];
             if (n > 0.5) continue;
             ys.push_back(y0);
@@ -201,15 +217,15 @@ SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma, const torch
     const int64_t R = int64_t(radii.size());
     std::vector<float> rx, ry, rr;
     for (int64_t i = 0; i < L.size(0); ++i) {
-        const int64_t k = ba[i];
-        if (k == 0 || k == R - 1 || !std::isfinite(La[i][k])) continue;  // at an end of the range: no reading
+        const int64_t b = ba[i];
+        if (b == 0 || b == R - 1 || !std::isfinite(La[i][b])) continue;  // at an end of the range: no reading
         // Parabolic refinement through the neighbours.
-        const double a = La[i][k - 1], b = La[i][k], c = La[i][k + 1];
-        const double den = a - 2 * b + c;
-        const double off = den > 0 ? std::clamp(0.5 * (a - c) / den, -0.5, 0.5) : 0.0;
-        rr.push_back(float(radii[k] + off * o.rstep));
-        rx.push_back(float(xs[i] + 0.5 * tw));
-        ry.push_back(float(ys[i] + 0.5 * th));
+        const double l0 = La[i][b - 1], l1 = La[i][b], l2 = La[i][b + 1];
+        const double den = l0 - 2 * l1 + l2;
+        const double off = den > 0 ? std::clamp(0.5 * (l0 - l2) / den, -0.5, 0.5) : 0.0;
+        rr.push_back(float((radii[b] + off * o.rstep) * k));
+        rx.push_back(float((xs[i] + 0.5 * tw) * k - 0.5 * (k - 1)));
+        ry.push_back(float((ys[i] + 0.5 * th) * k - 0.5 * (k - 1)));
     }
     out.x = torch::tensor(rx, torch::kFloat32);
     out.y = torch::tensor(ry, torch::kFloat32);

@@ -37,7 +37,9 @@ struct SpectralBlurOptions {
     // 9.5 px read 15.8 at 48x96, searched to 16 px); at 64x128 they read 9.5, 100% of tiles within
     // 10% (tests/test_spectral_blur.cpp).
     int tile_h = 64, tile_w = 128;
-    int stride = 16;                               // tile step (px)
+    int stride = 16;                               // tile step (px) ...
+    int max_tiles = 160;                           // ... grown to hold at most this many per frame
+    int max_width = 480;                           // wider frames are read at 1/k size (below)
     double rmin = 1.0, rmax = 16.0, rstep = 0.25;  // radii searched (px)
     // Window on each axis: Tukey with this share tapered (1: Hann). A 30% taper leaks the strong
     // low frequencies into the zero rings: a texture blurred by 7 px read 12 (the end of the range).
@@ -57,7 +59,8 @@ struct SpectralBlurSamples {
 };
 
 // luma [H,W] linear light; allowed [H,W] (bool or 0/1): a tile is read only where every pixel is
-// allowed. `kernel`: the fit's blur.
+// allowed. `kernel`: the fit's blur. A frame wider than max_width is area-averaged by the
+// integer k that brings it under, read, and its readings (places and radii) scaled by k.
 SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma, const torch::Tensor& allowed,
                                           const LensBlurParams& kernel, const SpectralBlurOptions& opts = {});
 
