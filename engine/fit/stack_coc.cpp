@@ -520,7 +520,16 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
                 // where the subject, in focus at first, lent its edges to the wall's composite):
                 // the floor holds as a least radius, and the relative reading alone left holes of
                 // 0-3 px in a 6-8 px wall.
-                r = torch::maximum(r, warp(ungated, to_canvas[t], H, W)[0][0].clamp_min(0));
+                auto u = warp(ungated, to_canvas[t], H, W)[0][0].clamp_min(0);
+                r = torch::maximum(r, u);
+                // Where the gate is open (focus never changed) the radius is the floor itself:
+                // the relative readings there are the stack's error by the gate's own verdict,
+                // and added in quadrature they put frame-to-frame jitter on a static wall (synth
+                // walkout: 0.075 px on average over time, up to +1.3 px; with the floor alone
+                // 0.025 px, tPSNR 25.75 -> 26.08 dB and 19.70 -> 19.77 at 2 min, 19.59 -> 19.76
+                // at 5).
+                auto g = warp(gate, to_canvas[t], H, W)[0][0].clamp(0, 1);
+                r = g * u + (1 - g) * r;
             }
             out[t] = r.clamp(0.0, o.rmax);
         }
