@@ -995,3 +995,42 @@ TEST_CASE("TV by the radii a texel was seen at: one radius in every view weighs 
                                  torch::full({1}, 4.5 * 4.5, torch::kDouble), 1.0, 4.0, 1.0, 5.0);
     CHECK(half[0].item<double>() == doctest::Approx(1.0 + 3.0 * 0.5));
 }
+
+TEST_CASE("the stack's wall behind a sharp subject that walked off: seen blurred, it keeps its floor") {
+    // A wall of flat blocks blurred 3 px (never in focus) and a sharp, high-contrast subject
+    // crossing it. The wall's composite weighs its own views against the sharpest of them; against
+    // every view's, the points the subject had covered kept weights of (contrast ratio)^8 ~ 0
+    // there, counted as never seen, and kept no floor: holes of radius 0 in every later frame
+    // (synth walkout: 27% of a 20x40 px block read 0-0.6 px for 6 px).
+    const int T = 8, H = 64, W = 96;
+    torch::manual_seed(5);
+    LensBlurParams bp;
+    bp.kernel = BlurKernel::Pillbox;
+    auto blocks = torch::rand({3, H / 8, W / 8}) * 0.3 + 0.3;
+    auto wall = lens_blur(torch::repeat_interleave(torch::repeat_interleave(blocks, 8, 1), 8, 2).contiguous(),
+                          torch::full({H, W}, 3.0f), bp);
+    auto ys = torch::arange(H).view({H, 1}), xs = torch::arange(W).view({1, W});
+    auto checker = ((ys / 2 + xs / 2) % 2).to(torch::kFloat32).expand({3, H, W}) * 0.95 + 0.02;
+    FitData d;
+    d.frames = T, d.height = H, d.width = W;
+    d.blur = bp;
+    std::vector<torch::Tensor> frames, masks;
+    for (int t = 0; t < T; ++t) {
+        const int x0 = 6 + 8 * t;  // 24x24, 8 px a frame
+        auto m = ((ys >= 20) & (ys < 44) & (xs >= x0) & (xs < x0 + 24)).to(torch::kFloat32).view({1, H, W});
+        auto subject = torch::roll(checker, {8 * t}, {2});  // its texture moves with it
+        frames.push_back(m * subject + (1 - m) * wall);
+        masks.push_back(m);
+    }
+    d.input = torch::stack(frames).contiguous();
+    d.mask = torch::stack(masks).contiguous();
+    d.has_subject = true;
+    d.to_ref = torch::eye(3, torch::kFloat64).expand({T, 3, 3}).contiguous();
+    auto est = estimate_radius_from_stack(d);
+    // The last frame's wall where the subject stood in the first (x 6-29, clear of it by then).
+    auto seen_later = est[T - 1].narrow(0, 24, 16).narrow(1, 8, 20);
+    auto elsewhere = est[T - 1].narrow(0, 4, 12).narrow(1, 8, 80);
+    MESSAGE("wall behind the subject's first place: " << seen_later.mean().item<float>() << " px (min "
+            << seen_later.min().item<float>() << "); elsewhere " << elsewhere.mean().item<float>() << " px; truth 3");
+    CHECK(seen_later.min().item<float>() > 0.6f * elsewhere.mean().item<float>());
+}

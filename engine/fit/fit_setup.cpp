@@ -64,7 +64,7 @@ std::string stack_key(const Project& project, const FitData& d) {
     // The radius is measured in the kernel's units: a pillbox's differs from the disk's.
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
            (d.static_camera ? "/static" : "/moving") +
-           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v11" + absolute_key();
+           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v12" + absolute_key();
 }
 
 fs::path stack_frame_path(const Project& project, int t) {

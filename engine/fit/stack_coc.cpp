@@ -369,10 +369,16 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, con
     auto w = (contrast / contrast.amax({0}, true).clamp_min(1e-12)).pow(8) * valid;
     auto own_seen = (w.sum(0)[0] > 1e-6).to(torch::kFloat32);  // [Hc,Wc]: where the composite is the layer's
     if (region.defined()) {
-        // The layer's own views first; where it is never seen, every view (a fallback that the
-        // final selection by region does not use anyway).
-        auto own = torch::stack(reg_region);                 // [T,1,Hc,Wc]
-        auto wo = w * (own > 0.5).to(torch::kFloat32);
+        // The layer's own views first, weighed against the sharpest of them; where the layer is
+        // never seen, every view (a fallback that the final selection by region does not use
+        // anyway). Against every view's sharpest, a wall point seen blurred after a sharp subject
+        // had stood over it kept weights of (contrast ratio)^8 ~ 1e-8, counted as never seen, and
+        // kept no floor: synth walkout's wall read 0-0.6 px for 6 px on 27% of a 20x40 px block
+        // where the subject stood at first, in every later frame (wall MAE 0.115 -> 0.094 px;
+        // 600 steps 19.34 -> 19.63 dB, 10 min 19.70 -> 20.20).
+        auto own = (torch::stack(reg_region) > 0.5).to(torch::kFloat32);  // [T,1,Hc,Wc]
+        auto co = contrast * own;
+        auto wo = (co / co.amax({0}, true).clamp_min(1e-12)).pow(8) * valid * own;
         w = torch::where(wo.sum(0, true) > 1e-6, wo, w);
         own_seen = (wo.sum(0)[0] > 1e-6).to(torch::kFloat32);
     }
