@@ -104,6 +104,7 @@ int bench_fit(int argc, char** argv) {
     PrepareLog log([](const std::string& l) { std::fprintf(stderr, "  %s\n", l.c_str()); });
     auto data = build_fit_data(project, s.setup, log);
     FitEngine engine(data, s.fit);
+    for (const auto& line : engine.model_notes()) log.info(line);
 
     std::vector<double> at = parse_times(a.get("at", "0.5,1,2,5,10,20,30"));
     std::vector<Row> rows;

@@ -85,6 +85,7 @@ int cmd_fit(int argc, char** argv) {
     PrepareLog log([](const std::string& line) { std::fprintf(stderr, "  %s\n", line.c_str()); });
     auto data = build_fit_data(project, s.setup, log);
     FitEngine engine(data, s.fit);
+    for (const auto& line : engine.model_notes()) log.info(line);
     const fs::path dir = fit_dir(project);
     if (resume) {
         if (!FitEngine::has_checkpoint(dir))

@@ -48,6 +48,16 @@ struct FastModelOptions {
     int align_rounds = 2;       // ECC refinement rounds at initialisation (0: off)
     double atlas_scale = 1;     // atlas px per frame px (FitData::atlas_scale); TV and the
                                 // residual warps stay in frame px
+    // The deblurring path: a second parameterisation of each atlas, d * Q, where Q's response
+    // rises where the layer's typical blur attenuates the scene (make_deblur_path). Adam moves
+    // each texel by ~lr whatever its gradient's size, so detail that the blur passed at a few
+    // percent converges that much slower on the texels alone; through Q it does not.
+    bool deblur_path = true;
+    double deblur_eps = 0.003;       // Q's gain is capped at ~1/sqrt(eps)
+    double deblur_lr = 0.3;          // times lr_atlas
+    double deblur_min_radius = 2.0;  // px: a layer blurred less has no path
+    int deblur_kernel = 15;          // Q's support, px
+    double deblur_tv = 1.0;          // TV weight factor on an atlas with the path
     int pad = 0;                // px of scene the atlases hold beyond each frame edge (the
                                 // engine passes the largest blur support; FitModel::max_pad)
 };
@@ -79,8 +89,13 @@ private:
         torch::Tensor warp;                 // [T,2,gh,gw] residual, px
         bool learn_warp = false;
         torch::Tensor tv_weight;            // [1,1,Ha,Wa] TV weight per texel (undefined: 1)
+        torch::Tensor deblur;               // [1,3,h,w] the deblurring path's texels, frame px
+        torch::Tensor deblur_kernel;        // [3,1,k,k] its fixed filter
     };
-    torch::Tensor compose(const Atlas& a) const;                           // [1,3,Ha,Wa]
+    // Gives `a` its deblurring path if the layer was never seen in focus; returns the log line.
+    std::string make_deblur_path(Atlas& a, const torch::Tensor& radius, const torch::Tensor& weight,
+                                 const torch::Tensor& views, const char* name);
+    torch::Tensor compose(const Atlas& a) const;
     // Atlas pixel coordinates of frame pixels, `pad` px beyond the edges: [B,H+2pad,W+2pad,2].
     torch::Tensor map_coords(const Atlas& a, const std::vector<int64_t>& frames, int64_t pad = 0) const;
     torch::Tensor to_grid(const Atlas& a, const torch::Tensor& px) const;  // → [-1,1]

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cmath>
+#include <filesystem>
 #include <cstdlib>
 #include <sstream>
 
@@ -16,6 +17,8 @@
 #include "fit/paper_model.h"
 #include "fit/perframe.h"
 #include "fit/stack_coc.h"
+#include "fit/tensor_image.h"
+#include "io/image_file.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -46,6 +49,13 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         env("REFOCUS_FAST_ALPHA_SHARED_LR", o.alpha_shared_lr);
         env("REFOCUS_FAST_LR_ALPHA", o.lr_alpha);
         env("REFOCUS_FAST_W_BOOTSTRAP", o.w_bootstrap);
+        double deblur = o.deblur_path;
+        env("REFOCUS_FAST_DEBLUR_PATH", deblur);
+        o.deblur_path = deblur != 0;
+        env("REFOCUS_FAST_DEBLUR_EPS", o.deblur_eps);
+        env("REFOCUS_FAST_DEBLUR_LR", o.deblur_lr);
+        env("REFOCUS_FAST_DEBLUR_MIN_RADIUS", o.deblur_min_radius);
+        env("REFOCUS_FAST_DEBLUR_TV", o.deblur_tv);
         double halflife = o.bootstrap_halflife;
         env("REFOCUS_FAST_BOOTSTRAP_HALFLIFE", halflife);
         o.bootstrap_halflife = int(halflife);
@@ -102,6 +112,15 @@ void FitEngine::build_model() {
     if (on) split_radius_by_layer(*m_data);
     else m_data->radius_fg = m_data->radius_bg = torch::Tensor();
     m_model = make_model(m_opts.preset, *m_data, m_opts.seed);
+    if (const char* e = std::getenv("REFOCUS_DEBUG_INIT_ATLAS")) {
+        // Diagnostic: start from given atlases (<dir>/atlas_bg.exr, and atlas_fg.exr where the
+        // file is there), e.g. the ground truth splatted through a fitted project's UV, to see
+        // where the objective's own optimum lies (README, Known limits: walkout).
+        const std::string dir = e;
+        m_model->set_atlas_bg(image_to_tensor(read_image_file(dir + "/atlas_bg.exr").image));
+        if (std::filesystem::exists(dir + "/atlas_fg.exr"))
+            m_model->set_atlas_fg(image_to_tensor(read_image_file(dir + "/atlas_fg.exr").image));
+    }
     m_pad = m_model->max_pad();
     if (m_pad > 0) {
         auto padded = [&](const torch::Tensor& r) {
@@ -116,6 +135,8 @@ void FitEngine::build_model() {
 }
 
 FitEngine::~FitEngine() = default;
+
+const std::vector<std::string>& FitEngine::model_notes() const { return m_model->notes; }
 
 void FitEngine::make_optimizer() {
     std::vector<torch::optim::OptimizerParamGroup> groups;

@@ -65,6 +65,7 @@ class FitEngine {
 public:
     FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts);
     ~FitEngine();
+    const std::vector<std::string>& model_notes() const;
 
     void step();              // one optimisation step (or one frame for `perframe`)
     bool done() const;        // budget used up or stop requested

@@ -71,6 +71,7 @@ struct ParamGroup {
 class FitModel {
 public:
     virtual ~FitModel() = default;
+    std::vector<std::string> notes;  // what the model decided at construction, for the log
     virtual std::string preset() const = 0;
     virtual std::vector<ParamGroup> param_groups() = 0;
     virtual Layers render(const std::vector<int64_t>& frames) = 0;
