@@ -58,6 +58,7 @@ struct FastModelOptions {
     double deblur_min_radius = 2.0;  // px: a layer blurred less has no path
     int deblur_kernel = 15;          // Q's support, px
     double deblur_tv = 1.0;          // TV weight factor on an atlas with the path
+    double deblur_tv_given = 0.5;    // ... where the radius is given (FitData::radius_given)
     int pad = 0;                // px of scene the atlases hold beyond each frame edge (the
                                 // engine passes the largest blur support; FitModel::max_pad)
 };

@@ -35,6 +35,8 @@ struct FitData {
     // Share of the wall (one layer: the frame) whose estimated radius holds over the clip: focus
     // never changed there, and the radius is the absolute floor (stack_coc.h). 0 with --coc.
     double fixed_focus_share = 0;
+    // The radius came as maps (`--coc`: an oracle or a depth-derived map), not the estimate.
+    bool radius_given = false;
     // Atlas texels per frame pixel (choose_atlas_scale, fit_setup.h; a checkpoint keeps its own).
     double atlas_scale = 1;
     // The subject's track as builds before the eighth session made it (mask centroids), for

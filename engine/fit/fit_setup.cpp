@@ -307,7 +307,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             log.info("radius: estimated per frame (edge reblur ratio, guided filter)");
         }
     }
-    log.info(choose_atlas_scale(*d, !opts.coc_path.empty()));
+    d->radius_given = !opts.coc_path.empty();
+    log.info(choose_atlas_scale(*d, d->radius_given));
     log.info(std::string("fit: ") + (d->static_camera ? "static camera, no learned background warp"
                                                       : "moving camera, learned residual warp") +
              ", " + (d->has_subject ? "two layers (moving subject)" : "one layer (no moving subject)"));
