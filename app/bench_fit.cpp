@@ -73,10 +73,10 @@ std::vector<double> parse_times(const std::string& s) {
 
 int bench_fit(int argc, char** argv) {
     Args a(argc, argv, 3, {"oracle-coc", "oracle-mask"});
-    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "coc", "oracle-mask", "mask", "at", "csv", "work", "seed"});
+    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "coc", "oracle-mask", "mask", "at", "csv", "work", "seed", "batch"});
     if (!a.has("clip"))
         throw Error("usage: refocus bench fit --clip <synth-dir> --preset fast|paper|perframe "
-                    "[--minutes M] [--oracle-coc | --coc <pattern>] [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv]");
+                    "[--minutes M] [--oracle-coc | --coc <pattern>] [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv] [--batch N]");
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
@@ -96,6 +96,7 @@ int bench_fit(int argc, char** argv) {
     s.fit.minutes = minutes;
     s.fit.iters = a.get_int("iters", 0);
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
+    s.fit.batch = a.get_int("batch", s.fit.batch);  // frames per step, as `refocus fit --batch`
     if (oracle) s.setup.coc_path = (clip / "coc_%04d.exr").string();
     if (a.has("coc")) s.setup.coc_path = a.get("coc");  // radius maps to try (e.g. the truth scaled)
     const bool oracle_mask = a.has("oracle-mask");

@@ -8,6 +8,9 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
+#include <fstream>
+#include <sstream>
 
 #include "io/clip.h"
 #include "metrics/metrics.h"
@@ -210,6 +213,49 @@ TEST_CASE("fit refuses bad inputs with messages naming the problem") {
     r = cli("fit '" + c.project.string() + "' --preset magic --iters 2");
     CHECK(r.code != 0);
     CHECK(r.output.find("unknown preset") != std::string::npos);
+    r = cli("fit '" + c.project.string() + "' --batch 0 --iters 2");
+    CHECK(r.code != 0);
+    CHECK(r.output.find("--batch must be at least 1") != std::string::npos);
+}
+
+TEST_CASE("bench fit prints run time against error and writes the CSV; --batch reaches the engine") {
+    TinyClip c = make_tiny("fit_bench");
+    const fs::path csv = c.dir / "bench.csv", work = c.dir / "bench_work";
+    RunResult r = cli("bench fit --clip '" + c.clip.string() + "' --preset fast --iters 12 --at 0,0.0001 --batch 3 "
+                      "--oracle-coc --csv '" + csv.string() + "' --work '" + work.string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    CHECK(r.output.find("radius ground truth") != std::string::npos);
+    CHECK(r.output.find("(end)") != std::string::npos);
+    CHECK(r.output.find("gain over input") != std::string::npos);
+    std::ifstream in(csv);
+    REQUIRE(in.good());
+    std::string header, line;
+    std::getline(in, header);
+    CHECK(header.rfind("clip,preset,radius,minutes,step,psnr,ssim,tpsnr,reblur_psnr", 0) == 0);
+    std::vector<std::string> rows;
+    while (std::getline(in, line))
+        if (!line.empty()) rows.push_back(line);
+    REQUIRE(rows.size() >= 2);  // the first step (--at 0) and the end
+    // The last row: the end, step 12, finite figures above 0 dB.
+    std::vector<std::string> f;
+    std::stringstream ss(rows.back());
+    for (std::string x; std::getline(ss, x, ',');) f.push_back(x);
+    REQUIRE(f.size() == 13);
+    CHECK(f[0] == "clip");
+    CHECK(f[1] == "fast");
+    CHECK(f[2] == "oracle");
+    CHECK(std::stoi(f[4]) == 12);
+    for (int i : {5, 7, 8, 9}) {
+        CHECK(std::isfinite(std::stod(f[i])));
+        CHECK(std::stod(f[i]) > 5.0);
+    }
+    // The fitted project is kept for export; its settings hold the batch the bench was given.
+    CHECK(fs::exists(work / "project.json"));
+    CHECK(read_fit_settings(Project::load(work)).fit.batch == 3);
+    r = cli("bench fit --clip '" + c.dir.string() + "' --preset fast --iters 2");
+    CHECK(r.code != 0);
+    CHECK(r.output.find("no clip.json") != std::string::npos);
 }
 
 TEST_CASE("radius from the clip as a focal stack matches the ground truth on a focus sweep") {

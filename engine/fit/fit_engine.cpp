@@ -92,6 +92,8 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (!m_data || m_data->frames <= 0) throw Error("fit: the clip has no frames");
     if (m_opts.minutes <= 0 && m_opts.iters <= 0)
         throw Error("fit: give a budget (--minutes M or --iters N)");
+    if (m_opts.batch < 1) throw Error("fit: --batch must be at least 1 frame per step (got " +
+                                      std::to_string(m_opts.batch) + ")");
     if (!torch::isfinite(m_data->input).all().item<bool>())
         throw Error("fit: the input frames contain NaN/Inf");
     if (!torch::isfinite(m_data->radius).all().item<bool>() ||
