@@ -96,7 +96,7 @@ int bench_fit(int argc, char** argv) {
     s.fit.minutes = minutes;
     s.fit.iters = a.get_int("iters", 0);
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
-    s.fit.batch = a.get_int("batch", s.fit.batch);  // frames per step, as `refocus fit --batch`
+    if (a.has("batch")) s.fit.batch = checked_batch_arg(a.get_int("batch", 0));  // frames per step; left out: the model's choice
     if (oracle) s.setup.coc_path = (clip / "coc_%04d.exr").string();
     if (a.has("coc")) s.setup.coc_path = a.get("coc");  // radius maps to try (e.g. the truth scaled)
     const bool oracle_mask = a.has("oracle-mask");

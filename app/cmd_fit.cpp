@@ -63,7 +63,7 @@ int cmd_fit(int argc, char** argv) {
                    "checkpoint-seconds", "reprepare"});
     if (a.positional().size() != 1)
         throw Error("usage: refocus fit <project> [--preset fast|paper|perframe] [--minutes M | "
-                    "--iters N] [--coc <pattern>] [--mask <pattern>] [--seed S] [--resume]");
+                    "--iters N] [--coc <pattern>] [--mask <pattern>] [--seed S] [--batch N] [--resume]");
     Project project = Project::load(a.positional()[0]);
     FitSettings s = read_fit_settings(project);
     const bool resume = a.has("resume");
@@ -76,7 +76,7 @@ int cmd_fit(int argc, char** argv) {
     if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.minutes = 5.0;
     if (s.fit.minutes < 0 || s.fit.iters < 0) throw Error("--minutes and --iters must be positive");
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", static_cast<int>(s.fit.seed)));
-    s.fit.batch = a.get_int("batch", s.fit.batch);
+    if (a.has("batch")) s.fit.batch = checked_batch_arg(a.get_int("batch", 0));  // frames per step; left out: the model's choice
     s.fit.checkpoint_seconds = a.get_double("checkpoint-seconds", 60.0);
     if (a.has("coc")) s.setup.coc_path = a.get("coc");
     if (a.has("mask")) s.setup.mask_path = a.get("mask");

@@ -28,9 +28,10 @@ const Command kCommands[] = {
      "print benchmark figures (bench with no name lists them)"},
     {"fit", refocus::cmd_fit,
      "fit <project> [--preset fast|paper|perframe] [--minutes M | --iters N] [--coc <pattern>]\n"
-     "           [--mask <pattern>] [--seed S] [--resume]",
+     "           [--mask <pattern>] [--seed S] [--batch N] [--resume]",
      "fit sharp layered atlases to the project's clip (checkpoints; --resume continues);\n"
-     "           --coc: per-frame EXR circle-of-confusion radii in px, instead of the estimate"},
+     "           --coc: per-frame EXR circle-of-confusion radii in px, instead of the estimate;\n"
+     "           --batch: frames per step (left out: 4 where a layer has the deblurring path, else 2)"},
     {"export", refocus::cmd_export,
      "export <project> --what sharp|reblur|atlas|alpha|coc|uv|all [--format png|exr|tiff|mp4]\n"
      "           --out <dir-or-file>",

@@ -980,10 +980,12 @@ TEST_CASE("the deblurring path: a wall blurred in every frame deblurs faster; it
         FitOptions o;
         o.preset = "fast";
         o.iters = 400;
+        o.batch = 2;  // the same frames a step with and without: the path is what is compared
         FitEngine e(std::make_shared<FitData>(*d), o);
         unsetenv("REFOCUS_FAST_DEBLUR_PATH");
         const bool has = e.model().state().count("bg_deblur") > 0;
         CHECK(has == path);
+        CHECK(e.batch() == 2);
         if (path) {
             REQUIRE(e.model_notes().size() == 1);
             CHECK(e.model_notes()[0].find("median sharpest radius 4.0 px") != std::string::npos);
@@ -997,6 +999,21 @@ TEST_CASE("the deblurring path: a wall blurred in every frame deblurs faster; it
     MESSAGE("400 steps, sharp PSNR: input " << psnr_of(d->input, sharp) << " dB, texels alone " << off
                                             << ", with the path " << on);
     CHECK(on > off + 1.0);
+    {
+        // Left to the model, a fit with the path takes 4 frames a step and says so; without, 2.
+        FitOptions o;
+        o.preset = "fast";
+        o.iters = 1;
+        FitEngine with(std::make_shared<FitData>(*d), o);
+        CHECK(with.batch() == 4);
+        REQUIRE(with.model_notes().size() == 2);
+        CHECK(with.model_notes()[1].find("4 frames a step") != std::string::npos);
+        setenv("REFOCUS_FAST_DEBLUR_PATH", "0", 1);
+        FitEngine without(std::make_shared<FitData>(*d), o);
+        unsetenv("REFOCUS_FAST_DEBLUR_PATH");
+        CHECK(without.batch() == 2);
+        CHECK(without.model_notes().empty());
+    }
 
     FastModelOptions o;
     o.align_rounds = 0;

@@ -151,6 +151,14 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     update_tv_weights();
 }
 
+int FastModel::preferred_batch() const {
+    return m_bg.deblur.defined() || m_fg.deblur.defined() ? m_opts.deblur_batch : FitModel::preferred_batch();
+}
+
+std::string FastModel::preferred_batch_reason() const {
+    return "a layer has the deblurring path; --batch 2 for the earlier default";
+}
+
 void FastModel::update_tv_weights() {
     // Weighted as the atlases were fused (the sharpest views of each layer), over the atlases'
     // current geometry: a checkpoint may bring its own (adopt_geometry).

@@ -59,6 +59,9 @@ struct FastModelOptions {
     int deblur_kernel = 15;          // Q's support, px
     double deblur_tv = 1.0;          // TV weight factor on an atlas with the path
     double deblur_tv_given = 0.5;    // ... where the radius is given (FitData::radius_given)
+    // Frames per step when a layer has the path (FitOptions::batch left to the model): its
+    // texels take the data's gradient through Q's gain, and two frames' worth of it is noisy.
+    int deblur_batch = 4;
     int pad = 0;                // px of scene the atlases hold beyond each frame edge (the
                                 // engine passes the largest blur support; FitModel::max_pad)
 };
@@ -70,6 +73,8 @@ public:
     std::vector<ParamGroup> param_groups() override;
     Layers render(const std::vector<int64_t>& frames) override { return render_padded(frames, 0); }
     int64_t max_pad() const override { return m_opts.pad; }
+    int preferred_batch() const override;
+    std::string preferred_batch_reason() const override;
     Layers render_padded(const std::vector<int64_t>& frames, int64_t pad) override;
     torch::Tensor priors(const Layers& layers, const std::vector<int64_t>& frames, int64_t step,
                          LossTerms& terms) override;

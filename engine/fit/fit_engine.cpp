@@ -55,6 +55,9 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
         env("REFOCUS_FAST_DEBLUR_EPS", o.deblur_eps);
         env("REFOCUS_FAST_DEBLUR_LR", o.deblur_lr);
         env("REFOCUS_FAST_DEBLUR_MIN_RADIUS", o.deblur_min_radius);
+        double dbatch = o.deblur_batch;
+        env("REFOCUS_FAST_DEBLUR_BATCH", dbatch);
+        o.deblur_batch = std::max(1, int(dbatch));
         // Half the TV where the path's layer has a given radius (synth walkout, true radius: 10 min
         // 21.30 -> 21.57 dB); an estimate's errors want the full TV (walkout, estimated radius,
         // 600 steps: 20.18 / tPSNR 25.75 at 1.0, 20.10 / 25.48 at 0.5). README, "What the table says".
@@ -81,6 +84,11 @@ std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& d
     throw Error("unknown preset '" + preset + "' (use fast, paper or perframe)");
 }
 
+int checked_batch_arg(int64_t n) {
+    if (n < 1) throw Error("fit: --batch must be at least 1 frame per step (got " + std::to_string(n) + ")");
+    return static_cast<int>(n);
+}
+
 FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     : m_data(std::move(data)), m_opts(opts), m_rng(opts.seed) {
     // A/B hooks for the benches (README, "Measured"): REFOCUS_ROBUST_C, REFOCUS_FALLBACK_K,
@@ -92,8 +100,7 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (!m_data || m_data->frames <= 0) throw Error("fit: the clip has no frames");
     if (m_opts.minutes <= 0 && m_opts.iters <= 0)
         throw Error("fit: give a budget (--minutes M or --iters N)");
-    if (m_opts.batch < 1) throw Error("fit: --batch must be at least 1 frame per step (got " +
-                                      std::to_string(m_opts.batch) + ")");
+    if (m_opts.batch < 0) checked_batch_arg(m_opts.batch);  // 0: the model's choice
     if (!torch::isfinite(m_data->input).all().item<bool>())
         throw Error("fit: the input frames contain NaN/Inf");
     if (!torch::isfinite(m_data->radius).all().item<bool>() ||
@@ -127,6 +134,10 @@ void FitEngine::build_model() {
         if (std::filesystem::exists(dir + "/atlas_fg.exr"))
             m_model->set_atlas_fg(image_to_tensor(read_image_file(dir + "/atlas_fg.exr").image));
     }
+    m_batch = m_opts.batch > 0 ? m_opts.batch : m_model->preferred_batch();
+    if (m_opts.batch == 0 && m_batch != 2)
+        m_model->notes.push_back("fit: " + std::to_string(m_batch) + " frames a step (" +
+                                 m_model->preferred_batch_reason() + ")");
     m_pad = m_model->max_pad();
     if (m_pad > 0) {
         auto padded = [&](const torch::Tensor& r) {
@@ -142,7 +153,10 @@ void FitEngine::build_model() {
 
 FitEngine::~FitEngine() = default;
 
-const std::vector<std::string>& FitEngine::model_notes() const { return m_model->notes; }
+const std::vector<std::string>& FitEngine::model_notes() const {
+    static const std::vector<std::string> none;  // perframe has no model
+    return m_model ? m_model->notes : none;
+}
 
 void FitEngine::make_optimizer() {
     std::vector<torch::optim::OptimizerParamGroup> groups;
@@ -172,7 +186,7 @@ bool FitEngine::done() const {
 std::vector<int64_t> FitEngine::next_batch() {
     // Epochs over a shuffled permutation: every frame is seen equally often.
     std::vector<int64_t> b;
-    const int n = std::min<int>(m_opts.batch, m_data->frames);
+    const int n = std::min<int>(m_batch, m_data->frames);
     while (static_cast<int>(b.size()) < n) {
         if (m_perm_pos >= m_perm.size()) {
             m_perm.resize(m_data->frames);

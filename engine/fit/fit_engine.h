@@ -25,7 +25,7 @@ struct FitOptions {
     double minutes = 0.0;          // time budget (0: none)
     int64_t iters = 0;             // step budget (0: none); one of the two must be set
     uint64_t seed = 1;
-    int batch = 2;                 // frames per step
+    int batch = 0;                 // frames per step; 0: the model's (FitModel::preferred_batch)
     double w_reco = 1.0;           // λ1 of paper eq. 4 (others live in the models)
     double ms_ssim_share = 0.84;   // L_reco = 0.84·(1 − MS-SSIM) + 0.16·L1 (Zhao et al. 2016)
     double lr_floor = 0.1;         // the learning rate decays (cosine) to this share of its own
@@ -48,6 +48,9 @@ struct FitOptions {
     // instead of the visible surface's map for both. Measured in README "How the fit works" 4.
     bool layer_radius = true;
 };
+
+// `--batch N` as typed: at least 1 (leaving it out lets the model choose, FitOptions::batch 0).
+int checked_batch_arg(int64_t n);
 
 struct FitSnapshot {
     int64_t step = 0;
@@ -76,6 +79,7 @@ public:
     void set_paused(bool p) { m_paused = p; }
     bool paused() const { return m_paused; }
     FitSnapshot snapshot() const;
+    int batch() const { return m_batch; }  // frames per step, as resolved
 
     // Checkpoints: `dir`/checkpoint.json + checkpoint_<step>.pt, written atomically; the json is
     // renamed last, so a kill at any moment leaves the previous checkpoint loadable.
@@ -130,6 +134,7 @@ private:
     std::mt19937_64 m_rng;
     std::vector<int64_t> m_perm;
     size_t m_perm_pos = 0;
+    int m_batch = 2;               // frames per step: FitOptions::batch, or the model's choice
     int64_t m_step = 0;
     double m_elapsed = 0.0;
     double m_last_ckpt = 0.0;

@@ -83,6 +83,9 @@ public:
     // (the engine does this in training). Models that cannot extrapolate their mapping return
     // 0 from max_pad().
     virtual int64_t max_pad() const { return 0; }
+    // Frames per step when the user gave none (FitOptions::batch 0).
+    virtual int preferred_batch() const { return 2; }
+    virtual std::string preferred_batch_reason() const { return {}; }
     virtual Layers render_padded(const std::vector<int64_t>& frames, int64_t pad);
     // Priors of paper eq. 4 that the model owns (sparsity, rigidity, flow, TV, mask bootstrap),
     // weighted, summed; each term's value is recorded in `terms`.
