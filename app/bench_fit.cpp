@@ -26,7 +26,12 @@ struct Row {
 // may run out of time before the last: the frames not reached still hold the input, so they
 // are left out (and the input's figures are recomputed on the same frames for the comparison);
 // tPSNR then covers the leading run of consecutive frames done.
-Row evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<Image>& input) {
+struct Frames {
+    std::vector<Image> sharp, gt, input;  // on the frames done
+};
+
+Row evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<Image>& input,
+             Frames* keep = nullptr) {
     std::vector<Image> sharp, reblur, g, in;
     for (int t = 0; t < static_cast<int>(gt.size()); ++t) {
         if (!engine.frame_done(t)) continue;
@@ -58,7 +63,24 @@ Row evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<
         r.tpsnr = tpsnr(a, b);
         r.in_tpsnr = tpsnr(c, b);
     }
+    if (keep) *keep = Frames{std::move(sharp), std::move(g), std::move(in)};
     return r;
+}
+
+// Where the sharp output's error lies in spatial frequency, beside the input's (metrics.h,
+// error_by_band): what a band's error is made of tells a prior's shrinkage (gain under 1 where
+// the blur passed the band) from what the input never held.
+void print_bands(const Frames& f) {
+    const std::vector<double> edges{0, .02, .04, .06, .08, .1, .13, .16, .2, .25, .3, .4, .5, .71};
+    const auto out = error_by_band(f.sharp, f.gt, edges), in = error_by_band(f.input, f.gt, edges);
+    std::printf("error by spatial frequency (cycles/px; power sums over frames and channels, sRGB 8-bit "
+                "levels, Hann window):\n");
+    std::printf("%11s %12s %12s %7s %7s %12s %7s\n", "band", "truth power", "error", "share", "gain",
+                "input error", "gain");
+    for (size_t i = 0; i < out.size(); ++i)
+        std::printf("  %.2f-%.2f %12.4g %12.4g %6.1f%% %7.3f %12.4g %7.3f\n", out[i].lo, out[i].hi,
+                    out[i].gt_power, out[i].err_power, 100 * out[i].err_share, out[i].gain, in[i].err_power,
+                    in[i].gain);
 }
 
 std::vector<double> parse_times(const std::string& s) {
@@ -131,7 +153,8 @@ int bench_fit(int argc, char** argv) {
             std::fflush(stdout);
         }
     }
-    rows.push_back(evaluate(engine, gt, input));
+    Frames last;
+    rows.push_back(evaluate(engine, gt, input, &last));
     // Keep the result: `refocus export <work>` shows what the figures measured.
     engine.save_checkpoint(fit_dir(project));
     FitSnapshot snap = engine.snapshot();
@@ -145,6 +168,7 @@ int bench_fit(int argc, char** argv) {
                     "SSIM %.4f  tPSNR %.2f dB\n",
                     r.frames_done, project.frames, r.in_psnr, r.in_ssim, r.in_tpsnr);
     std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - r.in_psnr, r.tpsnr - r.in_tpsnr);
+    if (!last.sharp.empty()) print_bands(last);
     if (a.has("csv")) {
         std::ostringstream csv;
         csv << "clip,preset,radius,minutes,step,psnr,ssim,tpsnr,reblur_psnr,input_psnr,input_tpsnr,"

@@ -228,6 +228,10 @@ TEST_CASE("bench fit prints run time against error and writes the CSV; --batch r
     CHECK(r.output.find("radius ground truth") != std::string::npos);
     CHECK(r.output.find("(end)") != std::string::npos);
     CHECK(r.output.find("gain over input") != std::string::npos);
+    // The end's error by spatial frequency: every band from 0 to 0.71 cycles/px, the input's beside.
+    CHECK(r.output.find("error by spatial frequency") != std::string::npos);
+    CHECK(r.output.find("  0.00-0.02 ") != std::string::npos);
+    CHECK(r.output.find("  0.50-0.71 ") != std::string::npos);
     std::ifstream in(csv);
     REQUIRE(in.good());
     std::string header, line;

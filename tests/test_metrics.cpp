@@ -90,3 +90,70 @@ TEST_CASE("tPSNR by hand") {
     CHECK(mean_psnr(flicker, gt) == doctest::Approx(20 * std::log10(255.0 / 3)).epsilon(1e-9));
     CHECK_THROWS_AS(tpsnr({gt[0]}, {gt[0]}), Error);
 }
+
+TEST_CASE("error by spatial frequency band") {
+    // A random image and two predictions of it, in linear metric space (no rounding): the image
+    // itself, and its contrast halved about its mean. Both are linear in the DFT, so the gain
+    // is exactly 1 and 0.5 in every band, and the halved one's error is a quarter of the truth's
+    // power band by band.
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    std::vector<Image> gt(2, Image(48, 32, 3)), same, half;
+    for (auto& g : gt)
+        for (float& v : g.pixels) v = u(rng);
+    for (const auto& g : gt) {
+        same.push_back(g);
+        Image h = g;
+        for (int c = 0; c < 3; ++c) {
+            double m = 0;
+            for (int y = 0; y < g.height; ++y)
+                for (int x = 0; x < g.width; ++x) m += g.at(x, y, c);
+            m /= double(g.width) * g.height;
+            for (int y = 0; y < g.height; ++y)
+                for (int x = 0; x < g.width; ++x) h.at(x, y, c) = float(m + 0.5 * (g.at(x, y, c) - m));
+        }
+        half.push_back(h);
+    }
+    const std::vector<double> edges{0, 0.1, 0.25, 0.5, 0.71};
+    const auto s = error_by_band(same, gt, edges, MetricSpace::Linear);
+    const auto h = error_by_band(half, gt, edges, MetricSpace::Linear);
+    REQUIRE(s.size() == 4);
+    double share = 0;
+    for (size_t i = 0; i < h.size(); ++i) {
+        CHECK(h[i].lo == edges[i]);
+        CHECK(h[i].hi == edges[i + 1]);
+        CHECK(h[i].gt_power > 0);
+        CHECK(s[i].err_power == doctest::Approx(0.0).epsilon(1e-12));
+        CHECK(s[i].gain == doctest::Approx(1.0).epsilon(1e-6));
+        CHECK(h[i].gain == doctest::Approx(0.5).epsilon(1e-4));
+        CHECK(h[i].err_power == doctest::Approx(0.25 * h[i].gt_power).epsilon(1e-3));
+        share += h[i].err_share;
+    }
+    CHECK(share == doctest::Approx(1.0).epsilon(1e-9));
+
+    // A 3x3 box blur keeps the low band and loses the high ones: gain falls with frequency.
+    std::vector<Image> blur;
+    for (const auto& g : gt) {
+        Image b = g;
+        for (int y = 1; y + 1 < g.height; ++y)
+            for (int x = 1; x + 1 < g.width; ++x)
+                for (int c = 0; c < 3; ++c) {
+                    float a = 0;
+                    for (int dy = -1; dy <= 1; ++dy)
+                        for (int dx = -1; dx <= 1; ++dx) a += g.at(x + dx, y + dy, c);
+                    b.at(x, y, c) = a / 9;
+                }
+        blur.push_back(b);
+    }
+    const auto b = error_by_band(blur, gt, edges, MetricSpace::Linear);
+    CHECK(b[0].gain > 0.7);
+    CHECK(b[0].gain > b[1].gain);
+    CHECK(b[1].gain > b[2].gain);
+    CHECK(b[2].err_share > b[0].err_share);
+
+    // Bad input is an error naming the problem.
+    CHECK_THROWS_AS(error_by_band(same, std::vector<Image>(1, gt[0]), edges), Error);
+    CHECK_THROWS_AS(error_by_band(same, gt, {0.1, 0.5}), Error);
+    CHECK_THROWS_AS(error_by_band(same, gt, {0, 0.5, 0.2}), Error);
+    CHECK_THROWS_AS(error_by_band({Image(8, 8, 3)}, {Image(8, 9, 3)}, edges), Error);
+}

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <opencv2/core.hpp>
+
 #include "util/error.h"
 
 namespace refocus {
@@ -227,6 +229,61 @@ double mean_ssim(const std::vector<Image>& pred, const std::vector<Image>& gt, M
     double s = 0;
     for (size_t t = 0; t < pred.size(); ++t) s += ssim(pred[t], gt[t], space);
     return s / pred.size();
+}
+
+std::vector<BandError> error_by_band(const std::vector<Image>& pred, const std::vector<Image>& gt,
+                                     const std::vector<double>& edges, MetricSpace space) {
+    if (pred.size() != gt.size() || pred.empty()) throw Error("error_by_band: frame counts differ or are zero");
+    if (edges.size() < 2 || edges.front() != 0.0 || !std::is_sorted(edges.begin(), edges.end()))
+        throw Error("error_by_band: band edges must rise from 0");
+    const size_t nb = edges.size() - 1;
+    std::vector<BandError> out(nb);
+    std::vector<double> cross(nb, 0.0);
+    for (size_t i = 0; i < nb; ++i) out[i].lo = edges[i], out[i].hi = edges[i + 1];
+    for (size_t t = 0; t < gt.size(); ++t) {
+        if (!pred[t].same_shape(gt[t])) throw Error("error_by_band: frame " + std::to_string(t) + " differs in size");
+        const Image p = to_metric_space(pred[t], space), g = to_metric_space(gt[t], space);
+        const int H = g.height, W = g.width;
+        std::vector<double> wy(H), wx(W);  // Hann
+        for (int y = 0; y < H; ++y) wy[y] = 0.5 - 0.5 * std::cos(2 * M_PI * (y + 0.5) / H);
+        for (int x = 0; x < W; ++x) wx[x] = 0.5 - 0.5 * std::cos(2 * M_PI * (x + 0.5) / W);
+        for (int c = 0; c < std::min(g.channels, 3); ++c) {
+            cv::Mat P(H, W, CV_64F), G(H, W, CV_64F);
+            double mp = 0, mg = 0;
+            for (int y = 0; y < H; ++y)
+                for (int x = 0; x < W; ++x) mp += p.at(x, y, c), mg += g.at(x, y, c);
+            mp /= double(H) * W;
+            mg /= double(H) * W;
+            for (int y = 0; y < H; ++y)
+                for (int x = 0; x < W; ++x) {
+                    P.at<double>(y, x) = (p.at(x, y, c) - mp) * wy[y] * wx[x];
+                    G.at<double>(y, x) = (g.at(x, y, c) - mg) * wy[y] * wx[x];
+                }
+            cv::Mat FP, FG;
+            cv::dft(P, FP, cv::DFT_COMPLEX_OUTPUT);
+            cv::dft(G, FG, cv::DFT_COMPLEX_OUTPUT);
+            for (int y = 0; y < H; ++y) {
+                const double fy = double(y <= H / 2 ? y : y - H) / H;
+                for (int x = 0; x < W; ++x) {
+                    const double fx = double(x <= W / 2 ? x : x - W) / W;
+                    const double f = std::sqrt(fx * fx + fy * fy);
+                    const size_t b = std::upper_bound(edges.begin(), edges.end(), f) - edges.begin();
+                    if (b == 0 || b > nb) continue;  // beyond the last edge
+                    const auto a = FP.at<cv::Vec2d>(y, x), e = FG.at<cv::Vec2d>(y, x);
+                    out[b - 1].gt_power += e[0] * e[0] + e[1] * e[1];
+                    out[b - 1].err_power += (a[0] - e[0]) * (a[0] - e[0]) + (a[1] - e[1]) * (a[1] - e[1]);
+                    cross[b - 1] += a[0] * e[0] + a[1] * e[1];
+                }
+            }
+        }
+    }
+    double total = 0;
+    for (const auto& b : out) total += b.err_power;
+    for (size_t i = 0; i < nb; ++i) {
+        out[i].err_share = total > 0 ? out[i].err_power / total : 0.0;
+        out[i].gain = out[i].gt_power > 0 ? cross[i] / out[i].gt_power : 0.0;
+    }
+    return out;
 }
 
 }  // namespace refocus

@@ -42,4 +42,18 @@ double mean_psnr(const std::vector<Image>& pred, const std::vector<Image>& gt,
 double mean_ssim(const std::vector<Image>& pred, const std::vector<Image>& gt,
                  MetricSpace space = MetricSpace::Srgb8);
 
+// Where the error lies in spatial frequency. Each frame (and the ground truth) in the metric
+// space, each channel less its mean, under a separable Hann window, goes through a 2-D DFT;
+// radial frequency |f| in cycles/px (0 to 0.707) is cut at `edges` (ascending, first 0). Per
+// band, over all frames and channels: the ground truth's power sum |G|^2, the error's
+// sum |P - G|^2, its share of the error over all bands, and the gain Re<P, G> / |G|^2 (1: the
+// band came back at full contrast, 0: not at all; the in-phase part of P over G).
+struct BandError {
+    double lo = 0, hi = 0;
+    double gt_power = 0, err_power = 0, err_share = 0, gain = 0;
+};
+std::vector<BandError> error_by_band(const std::vector<Image>& pred, const std::vector<Image>& gt,
+                                     const std::vector<double>& edges,
+                                     MetricSpace space = MetricSpace::Srgb8);
+
 }  // namespace refocus
