@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "args.h"
+#include "bench_util.h"
 #include "commands.h"
 #include "fit/tensor_image.h"
 #include "io/image_file.h"
@@ -48,12 +49,7 @@ std::vector<KernelCase> kernel_cases() {
 
 // sRGB 8-bit PSNR over the pixels where `mask` [H,W] is 1.
 double masked_psnr(const torch::Tensor& a, const torch::Tensor& b, const torch::Tensor& mask) {
-    auto enc = [](const torch::Tensor& x) {
-        auto c = x.clamp(0, 1);
-        auto s = torch::where(c <= 0.0031308, 12.92 * c, 1.055 * c.pow(1.0 / 2.4) - 0.055);
-        return (s * 255).round();
-    };
-    auto d = (enc(a) - enc(b)).pow(2).sum(0);  // [H,W]
+    auto d = (srgb8(a) - srgb8(b)).pow(2).sum(0);  // [H,W]
     const double n = mask.sum().item<double>() * a.size(0);
     if (n <= 0) return 0;
     const double mse = (d * mask).sum().item<double>() / n;
@@ -70,15 +66,8 @@ int bench_kernel(int argc, char** argv) {
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
-    auto parse = [](const std::string& s) {
-        std::vector<double> v;
-        std::stringstream ss(s);
-        std::string item;
-        while (std::getline(ss, item, ',')) v.push_back(std::stod(item));
-        return v;
-    };
-    const auto frames = parse(a.get("frames", "0,10,20"));
-    const auto scales = parse(a.get("scales", "1"));
+    const auto frames = parse_list(a.get("frames", "0,10,20"));
+    const auto scales = parse_list(a.get("scales", "1"));
     namespace F = torch::nn::functional;
     const auto cases = kernel_cases();
     std::printf("clip %s: PSNR (dB, sRGB 8-bit) of L(sharp, s*coc) against the input\n",

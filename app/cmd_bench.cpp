@@ -200,6 +200,9 @@ const Bench kBenches[] = {
     {"kernel", bench_kernel,
      "kernel --clip <synth-dir> [--frames 0,10,20] [--scales 1]\n"
      "             how well each blur kernel reblurs the clip's ground truth into its input"},
+    {"bound", bench_bound,
+     "bound --clip <synth-dir> [--sharp <dir>] [--lambdas 1e-6,1e-5] [--iters 300]\n"
+     "             the wall's best 1x atlas and best linear (Wiener) deconvolution, given the truth"},
 };
 
 }  // namespace

@@ -13,6 +13,7 @@
 #include <sstream>
 
 #include "io/clip.h"
+#include "io/image_file.h"
 #include "metrics/metrics.h"
 #include "fit/atlas_geometry.h"
 #include "fit/fast_model.h"
@@ -258,6 +259,50 @@ TEST_CASE("bench fit prints run time against error and writes the CSV; --batch r
     CHECK(fs::exists(work / "project.json"));
     CHECK(read_fit_settings(Project::load(work)).fit.batch == 3);
     r = cli("bench fit --clip '" + c.dir.string() + "' --preset fast --iters 2");
+    CHECK(r.code != 0);
+    CHECK(r.output.find("no clip.json") != std::string::npos);
+}
+
+TEST_CASE("bench bound: the wall's ceiling and Wiener bound against the truth; bad clips refused") {
+    TinyClip c = make_tiny("fit_bound", "walkout", "160x90");
+    // A fit's sharp frames are scored on the same pixels: the truth itself scores far above all.
+    RunResult r = cli("bench bound --clip '" + c.clip.string() + "' --lambdas 1e-6,1e-5 --iters 60 --sharp '" +
+                      c.clip.string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    auto figure = [&](const std::string& label) {
+        const auto at = r.output.find(label);
+        REQUIRE(at != std::string::npos);
+        const auto eol = r.output.find('\n', at);
+        const auto last = r.output.rfind(' ', eol);  // the figure ends the line
+        return std::stod(r.output.substr(last + 1, eol - last - 1));
+    };
+    const double input = figure("input"), ceiling = figure("ceiling: the truth on one phase");
+    const double b6 = figure("bound: Wiener at lambda 1e-06");
+    const double b5 = figure("bound: Wiener at lambda 1e-05");
+    const double truth = figure("fit (--sharp)");
+    // The deconvolution restores what the blur took (walkout's wall: 2.5-4.7 px here), and
+    // stays under the best a 1x atlas holds, which stays under the truth itself.
+    CHECK(b5 > input + 2.0);
+    CHECK(b6 > input + 1.0);
+    CHECK(ceiling > std::max(b5, b6) + 2.0);
+    CHECK(truth > ceiling + 20.0);
+    CHECK(r.output.find("best bound") != std::string::npos);
+
+    // A focus that moves gives each frame its own blur per wall point: refused, naming the file.
+    const std::string coc3 = (c.clip / "coc_0003.exr").string();
+    Image coc = read_image_file(coc3, false).image;
+    for (auto& v : coc.pixels) v *= 1.5f;
+    write_image_file(coc3, coc, PixelFormat::ExrFloat);
+    r = cli("bench bound --clip '" + c.clip.string() + "' --iters 5");
+    CHECK(r.code != 0);
+    CHECK(r.output.find("clip.json: the wall's blur changes between frames") != std::string::npos);
+    // A panning camera and a directory without clip.json.
+    TinyClip p = make_tiny("fit_bound_pan", "pan", "64x36");
+    r = cli("bench bound --clip '" + p.clip.string() + "'");
+    CHECK(r.code != 0);
+    CHECK(r.output.find("the camera pans") != std::string::npos);
+    r = cli("bench bound --clip '" + p.dir.string() + "'");
     CHECK(r.code != 0);
     CHECK(r.output.find("no clip.json") != std::string::npos);
 }
