@@ -263,6 +263,41 @@ TEST_CASE("bench fit prints run time against error and writes the CSV; --batch r
     CHECK(r.output.find("no clip.json") != std::string::npos);
 }
 
+TEST_CASE("a subject seen smaller than in its atlas: the atlas is prefiltered for the footprint") {
+    // A point spreads to the footprint's box variance less the texel's own: (s² − 1)/12 a side.
+    auto impulse = torch::zeros({1, 3, 21, 21});
+    impulse.index_put_({0, torch::indexing::Slice(), 10, 10}, 1.0f);
+    for (double s : {1.5, 2.5, 4.0}) {
+        auto f = prefilter_for_footprint(impulse, s);
+        REQUIRE(f.sizes() == impulse.sizes());
+        auto x = torch::arange(-10, 11, torch::kFloat32);
+        const double sum = f[0][1].sum().item<double>();
+        const double var_x = (f[0][1] * (x * x).view({1, 21})).sum().item<double>() / sum;
+        const double var_y = (f[0][1] * (x * x).view({21, 1})).sum().item<double>() / sum;
+        INFO("s " << s << ": variance " << var_x << " x " << var_y);
+        CHECK(sum == doctest::Approx(1.0).epsilon(1e-5));  // light is kept
+        CHECK(var_x == doctest::Approx((s * s - 1) / 12).epsilon(0.03));
+        CHECK(var_y == doctest::Approx(var_x).epsilon(1e-5));
+    }
+    // No minification (or a magnification): the atlas as it is; a flat atlas stays flat.
+    CHECK(prefilter_for_footprint(impulse, 1.0).is_same(impulse));
+    CHECK(prefilter_for_footprint(impulse, 0.5).is_same(impulse));
+    auto flat = torch::full({1, 3, 9, 12}, 0.4f);
+    CHECK((prefilter_for_footprint(flat, 3.0) - 0.4f).abs().max().item<float>() < 1e-6f);
+
+    // A subject walking away (masks given: 8 frames of a tiny clip are too few for automatic
+    // ones): the fit says that it prefilters, and its sharp frames stay finite.
+    TinyClip c = make_tiny("fit_walkaway", "walkout", "160x90");
+    RunResult r = cli("fit '" + c.project.string() + "' --preset fast --iters 3 --coc '" +
+                      (c.clip / "coc_%04d.exr").string() + "' --mask '" + (c.clip / "alpha_%04d.png").string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    CHECK(r.output.find("the subject's size changes along the clip") != std::string::npos);
+    CHECK(r.output.find("prefiltered for each frame where the subject is smaller") != std::string::npos);
+    for (const auto& img : export_sharp(c, "sharp"))
+        for (float v : img.pixels) REQUIRE(std::isfinite(v));
+}
+
 TEST_CASE("bench bound: the wall's ceiling and Wiener bound against the truth; bad clips refused") {
     TinyClip c = make_tiny("fit_bound", "walkout", "160x90");
     // A fit's sharp frames are scored on the same pixels: the truth itself scores far above all.

@@ -92,6 +92,14 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         // rack, mean distance of the true subject centre from its mean in the atlas: refusing
         // corrections over 4 px 2.7 px, over 10 px 1.0.
         refine_alignment(m_fg, fg_weight, d.mask, true, d.legacy_subject_track ? 4.0 : 10.0);
+        if (std::any_of(sc.begin(), sc.end(), [](double v) { return v != 1.0; })) {
+            char line[200];
+            std::snprintf(line, sizeof line,
+                          "fit (fast): the subject's size changes along the clip (%.2f-%.2f of its largest, from "
+                          "its flow): the atlas is prefiltered for each frame where the subject is smaller",
+                          *std::min_element(sc.begin(), sc.end()), *std::max_element(sc.begin(), sc.end()));
+            notes.push_back(line);
+        }
         init_levels(m_fg, fuse(m_fg, fg_weight));
         // Alpha (paper eq. 1): a matte shared by the frames, in the foreground atlas (half its
         // resolution), plus a per-frame residual (quarter resolution) for what moves on the
@@ -392,6 +400,44 @@ std::vector<ParamGroup> FastModel::param_groups() {
     return g;
 }
 
+torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s) {
+    // A frame pixel integrates the scene over its footprint, s × s texels where a layer is seen
+    // s times smaller than in its atlas (a subject walking away: synth walkout's last frames,
+    // s ≈ 2.5). Sampling the atlas there without prefiltering aliases its fine texture (the
+    // shirt's stripes). A texel already holds its own box (variance 1/12 a side), so the
+    // footprint's box (s²/12) is met by a Gaussian of the rest: σ² = (s² − 1)/12 texels².
+    const double var = (s * s - 1.0) / 12.0;
+    if (!(var >= 0.01)) return image;  // σ < 0.1 texel (or s ≤ 1): nothing to remove
+    const int64_t C = image.size(1);
+    // Under half a texel² a sampled Gaussian falls short of its variance (σ² 0.10: 0.016), so
+    // three taps (v/2, 1 − v, v/2) carry it exactly; past it the sampled Gaussian is within 1%.
+    const int64_t r = var < 0.5 ? 1 : static_cast<int64_t>(std::ceil(3 * std::sqrt(var)));
+    auto x = torch::arange(-r, r + 1, image.options());
+    auto k = var < 0.5 ? torch::tensor({var / 2, 1 - var, var / 2}, image.options())
+                       : torch::exp(-x * x / (2 * var));
+    k = k / k.sum();
+    auto img = F::pad(image, F::PadFuncOptions({r, r, r, r}).mode(torch::kReplicate));
+    img = F::conv2d(img, k.view({1, 1, 1, -1}).expand({C, 1, 1, 2 * r + 1}), F::Conv2dFuncOptions().groups(C));
+    return F::conv2d(img, k.view({1, 1, -1, 1}).expand({C, 1, 2 * r + 1, 1}), F::Conv2dFuncOptions().groups(C));
+}
+
+torch::Tensor FastModel::minified(const torch::Tensor& fg, const std::vector<int64_t>& frames) const {
+    const int64_t B = frames.size();
+    const auto img = fg.view({1, 3, m_fg.height, m_fg.width});
+    std::vector<torch::Tensor> per;
+    bool any = false;
+    for (int64_t b = 0; b < B; ++b) {
+        // Texels per frame pixel, relative to the atlas's own resolution (a 2x atlas is not a
+        // minification: its texels are half a frame pixel by design).
+        auto J = m_fg.to_atlas[frames[b]].narrow(0, 0, 2).narrow(1, 0, 2).to(torch::kFloat64);
+        const double s = std::sqrt(std::abs(torch::det(J).item<double>())) / m_fg.scale;
+        auto f = prefilter_for_footprint(img, s);
+        any = any || !f.is_same(img);
+        per.push_back(f[0]);
+    }
+    return any ? torch::stack(per) : img.expand({B, 3, m_fg.height, m_fg.width});
+}
+
 Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad) {
     const int64_t B = frames.size(), H = m_data.height, W = m_data.width;
     Layers out;
@@ -409,7 +455,7 @@ Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad)
     auto fg = compose(m_fg);
     m_composed_fg = training ? fg : torch::Tensor();
     out.uv_fg = to_grid(m_fg, map_coords(m_fg, frames, pad));
-    out.fg = sample_bicubic(fg.expand({B, 3, m_fg.height, m_fg.width}), out.uv_fg);
+    out.fg = sample_bicubic(minified(fg, frames), out.uv_fg);
     auto idx = torch::tensor(frames, torch::kLong);
     // The shared matte through the foreground mapping (its grid [-1,1] spans the atlas, which
     // the half-resolution matte spans too) plus the frame's residual.

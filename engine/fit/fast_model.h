@@ -66,6 +66,11 @@ struct FastModelOptions {
                                 // engine passes the largest blur support; FitModel::max_pad)
 };
 
+// [1,C,h,w] prefiltered for a footprint of s × s texels (a layer seen s times smaller than in
+// its atlas): a separable Gaussian of variance (s² − 1)/12 texels² a side, edges repeated; the
+// image itself where that is under 0.01 (s ≤ ~1.06).
+torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s);
+
 class FastModel : public FitModel {
 public:
     FastModel(const FitData& data, const FastModelOptions& opts);
@@ -117,6 +122,9 @@ private:
     // reblurred fused atlas against the input frame, inside `region` ([T,1,H,W] > 0.5), then
     // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp
     // atlas shifted by a pixel scores worse than the blurred input.
+    // The composed foreground atlas ([3,h,w] or [1,3,h,w]) prefiltered for each frame's
+    // minification (the subject seen smaller than in the atlas): [B,3,h,w].
+    torch::Tensor minified(const torch::Tensor& fg, const std::vector<int64_t>& frames) const;
     void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
                           bool affine, double max_shift, bool static_camera = false);
     // Checkpoints hold each atlas's geometry (its box and per-frame mapping) beside its texels:
