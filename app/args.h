@@ -18,12 +18,12 @@ public:
                 std::string key = a.substr(2);
                 auto eq = key.find('=');
                 if (eq != std::string::npos) {
-                    m_opts[key.substr(0, eq)] = key.substr(eq + 1);
+                    add(key.substr(0, eq), key.substr(eq + 1));
                 } else if (flags.count(key)) {
-                    m_opts[key] = "1";
+                    add(key, "1");
                 } else {
                     if (i + 1 >= argc) throw std::runtime_error("option --" + key + " needs a value");
-                    m_opts[key] = argv[++i];
+                    add(key, argv[++i]);
                 }
             } else if (a == "-o") {
                 if (i + 1 >= argc) throw std::runtime_error("option -o needs a value");
@@ -35,6 +35,11 @@ public:
     }
     const std::vector<std::string>& positional() const { return m_pos; }
     bool has(const std::string& k) const { return m_opts.count(k) > 0; }
+    // Every value of an option that may repeat (--set a=1 --set b=2), in order.
+    std::vector<std::string> get_all(const std::string& k) const {
+        auto it = m_all.find(k);
+        return it == m_all.end() ? std::vector<std::string>{} : it->second;
+    }
     std::string get(const std::string& k, const std::string& def = "") const {
         auto it = m_opts.find(k);
         return it == m_opts.end() ? def : it->second;
@@ -63,8 +68,13 @@ public:
     }
 
 private:
+    void add(const std::string& k, const std::string& v) {
+        m_opts[k] = v;  // the last one wins where an option is single
+        m_all[k].push_back(v);
+    }
     std::vector<std::string> m_pos;
     std::map<std::string, std::string> m_opts;
+    std::map<std::string, std::vector<std::string>> m_all;
 };
 
 }  // namespace refocus

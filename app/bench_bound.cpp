@@ -93,41 +93,40 @@ struct Score {
     double psnr() const { return n > 0 ? 10 * std::log10(255.0 * 255.0 * n / std::max(se, 1e-9)) : 0; }
 };
 
-}  // namespace
+// A synth clip whose camera only shakes: its passes and the shake per frame.
+struct BoundClip {
+    int T = 0;
+    int64_t H = 0, W = 0;
+    std::string json_path;
+    std::vector<std::array<double, 2>> shake;
+    std::vector<torch::Tensor> input, truth, coc, alpha, sharp;  // sharp: a fit's export (optional)
+};
 
-int bench_bound(int argc, char** argv) {
-    Args a(argc, argv, 3);
-    a.check_known({"clip", "sharp", "lambdas", "iters"});
-    if (!a.has("clip"))
-        throw Error(
-            "usage: refocus bench bound --clip <synth-dir> [--sharp <dir>] [--lambdas 1e-6,1e-5] "
-            "[--iters 300]");
-    const fs::path clip = a.get("clip");
-    const std::string json_path = (clip / "clip.json").string();
-    if (!fs::exists(json_path))
+BoundClip load_bound_clip(const fs::path& clip, const std::string& sharp_dir) {
+    BoundClip bc;
+    bc.json_path = (clip / "clip.json").string();
+    if (!fs::exists(bc.json_path))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
     nlohmann::json j;
     try {
-        std::ifstream f(json_path);
+        std::ifstream f(bc.json_path);
         f >> j;
     } catch (const std::exception& e) {
-        throw Error(file_error(json_path, std::string("unreadable: ") + e.what()));
+        throw Error(file_error(bc.json_path, std::string("unreadable: ") + e.what()));
     }
-    const int T = j.value("frames", 0);
+    bc.T = j.value("frames", 0);
+    const int T = bc.T;
     const auto& cam = j.at("camera");
     if (T < 1 || cam.at("pan").size() != static_cast<size_t>(T) ||
         cam.at("shake_px").size() != static_cast<size_t>(T))
-        throw Error(file_error(json_path, "frames, camera.pan and camera.shake_px disagree"));
-    std::vector<std::array<double, 2>> shake(T);
+        throw Error(file_error(bc.json_path, "frames, camera.pan and camera.shake_px disagree"));
+    bc.shake.resize(T);
     for (int t = 0; t < T; ++t) {
         if (std::abs(cam["pan"][t].get<double>()) > 1e-9)
-            throw Error(file_error(json_path, "the camera pans (frame " + std::to_string(t) +
+            throw Error(file_error(bc.json_path, "the camera pans (frame " + std::to_string(t) +
                                                   "): this bound needs a camera that only shakes"));
-        shake[t] = {cam["shake_px"][t][0].get<double>(), cam["shake_px"][t][1].get<double>()};
+        bc.shake[t] = {cam["shake_px"][t][0].get<double>(), cam["shake_px"][t][1].get<double>()};
     }
-    const std::vector<double> lambdas = parse_list(a.get("lambdas", "3e-7,1e-6,3e-6,1e-5,3e-5"));
-    const int iters = std::stoi(a.get("iters", "300"));
-
     auto path = [&](const fs::path& dir, const char* pass, int t, const char* ext) {
         char buf[40];
         std::snprintf(buf, sizeof buf, "%s_%04d.%s", pass, t, ext);
@@ -136,7 +135,8 @@ int bench_bound(int argc, char** argv) {
     auto load = [](const std::string& p, bool srgb) {
         return image_to_tensor(read_image_file(p, srgb).image).to(torch::kFloat64);
     };
-    std::vector<torch::Tensor> input(T), truth(T), coc(T), alpha(T), sharp;
+    bc.input.resize(T), bc.truth.resize(T), bc.coc.resize(T), bc.alpha.resize(T);
+    auto &input = bc.input, &truth = bc.truth, &coc = bc.coc, &alpha = bc.alpha;
     for (int t = 0; t < T; ++t) {
         input[t] = load(path(clip, "input", t, "png"), true);
         truth[t] = load(path(clip, "sharp", t, "png"), true);
@@ -146,26 +146,34 @@ int bench_bound(int argc, char** argv) {
             throw Error(file_error(path(clip, "input", t, "png"),
                                    "its size differs from the clip's other passes"));
     }
-    if (a.has("sharp")) {
+    if (!sharp_dir.empty()) {
         for (int t = 0; t < T; ++t) {
-            sharp.push_back(load(path(a.get("sharp"), "sharp", t, "png"), true));
-            if (sharp.back().sizes() != truth[t].sizes())
-                throw Error(file_error(path(a.get("sharp"), "sharp", t, "png"),
+            bc.sharp.push_back(load(path(sharp_dir, "sharp", t, "png"), true));
+            if (bc.sharp.back().sizes() != truth[t].sizes())
+                throw Error(file_error(path(sharp_dir, "sharp", t, "png"),
                                        "not the clip's frame size"));
         }
     }
-    const int64_t H = input[0].size(1), W = input[0].size(2);
+    bc.H = input[0].size(1);
+    bc.W = input[0].size(2);
+    return bc;
+}
 
-    // The wall as each frame sees it: no subject within 12 px (the subject's own blur and the
-    // wall's occlusion behind it) for the inputs, within 3 px for the truth (its soft edge).
-    std::vector<torch::Tensor> wall_in(T), wall_gt(T);
-    for (int t = 0; t < T; ++t) {
-        wall_in[t] = away_from(alpha[t], 12);
-        wall_gt[t] = away_from(alpha[t], 3);
-    }
+// The wall's blur moved onto one phase: R (the operator's margin, px), the circle of confusion
+// per point [1,H+2R,W+2R] and the kernel's radius for it. Throws where the frames disagree on
+// a point's blur by more than 0.25 px (focus moves): the bound needs one blur per point.
+struct WallBlur {
+    int64_t R;
+    torch::Tensor rad, kr;
+};
+
+WallBlur wall_blur(const BoundClip& bc, const std::vector<torch::Tensor>& wall_gt, const LensBlurParams& lp) {
+    const int T = bc.T;
+    const int64_t H = bc.H, W = bc.W;
+    const auto& coc = bc.coc;
+    const auto& shake = bc.shake;
+    const std::string& json_path = bc.json_path;
     // The kernel's radius for each circle of confusion, by a table (the conversion bisects).
-    LensBlurParams lp;
-    lp.kernel = BlurKernel::Pillbox;
     double cmax = 0;
     for (const auto& c : coc) cmax = std::max(cmax, c.max().item<double>());
     const int64_t R = static_cast<int64_t>(std::ceil(lens_blur_support(cmax + 1, lp))) + 2;
@@ -212,6 +220,39 @@ int bench_bound(int argc, char** argv) {
     auto row_mean = (rad * seen).sum(-1, true) / seen.sum(-1, true).clamp_min(1);
     rad = torch::where(seen, rad, row_mean.expand_as(rad));
     auto kr = to_kernel(rad[0]);
+    return {R, rad, kr};
+}
+
+}  // namespace
+
+int bench_bound(int argc, char** argv) {
+    Args a(argc, argv, 3);
+    a.check_known({"clip", "sharp", "lambdas", "iters"});
+    if (!a.has("clip"))
+        throw Error(
+            "usage: refocus bench bound --clip <synth-dir> [--sharp <dir>] [--lambdas 1e-6,1e-5] "
+            "[--iters 300]");
+    const std::vector<double> lambdas = parse_list(a.get("lambdas", "3e-7,1e-6,3e-6,1e-5,3e-5"));
+    const int iters = std::stoi(a.get("iters", "300"));
+
+    const fs::path clip = a.get("clip");
+    BoundClip bc = load_bound_clip(clip, a.get("sharp"));
+    const int T = bc.T;
+    const auto& shake = bc.shake;
+    const auto &input = bc.input, &truth = bc.truth, &alpha = bc.alpha, &sharp = bc.sharp;
+    const int64_t H = bc.H, W = bc.W;
+    // The wall as each frame sees it: no subject within 12 px (the subject's own blur and the
+    // wall's occlusion behind it) for the inputs, within 3 px for the truth (its soft edge).
+    std::vector<torch::Tensor> wall_in(T), wall_gt(T);
+    for (int t = 0; t < T; ++t) {
+        wall_in[t] = away_from(alpha[t], 12);
+        wall_gt[t] = away_from(alpha[t], 3);
+    }
+    LensBlurParams lp;
+    lp.kernel = BlurKernel::Pillbox;
+    const WallBlur wb = wall_blur(bc, wall_gt, lp);
+    const int64_t R = wb.R;
+    const torch::Tensor rad = wb.rad, kr = wb.kr;
 
     auto [B, bcov] = unshifted_mean(input, wall_in, shake, R);
     auto [A0, gcov] = unshifted_mean(truth, wall_gt, shake, R);

@@ -95,10 +95,10 @@ std::vector<double> parse_times(const std::string& s) {
 
 int bench_fit(int argc, char** argv) {
     Args a(argc, argv, 3, {"oracle-coc", "oracle-mask"});
-    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "coc", "oracle-mask", "mask", "at", "csv", "work", "seed", "batch"});
+    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "coc", "oracle-mask", "mask", "at", "csv", "work", "seed", "batch", "set"});
     if (!a.has("clip"))
-        throw Error("usage: refocus bench fit --clip <synth-dir> --preset fast|paper|perframe "
-                    "[--minutes M] [--oracle-coc | --coc <pattern>] [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv] [--batch N]");
+        throw Error("usage: refocus bench fit --clip <synth-dir> --preset " + preset_names() + " "
+                    "[--minutes M] [--oracle-coc | --coc <pattern>] [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv] [--batch N] [--set name=value]...");
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
@@ -114,6 +114,9 @@ int bench_fit(int argc, char** argv) {
     for (int t = 0; t < project.frames; ++t) input.push_back(project.read_frame(t));
 
     FitSettings s;
+    Settings settings;
+    for (const auto& assignment : a.get_all("set")) settings.set_assignment(assignment);
+    use_settings(s, settings);
     s.fit.preset = preset;
     s.fit.minutes = minutes;
     s.fit.iters = a.get_int("iters", 0);

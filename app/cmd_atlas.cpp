@@ -35,7 +35,7 @@ int cmd_atlas(int argc, char** argv) {
     {
         std::lock_guard<std::mutex> lock(engine->model_mutex());
         torch::NoGradGuard g;
-        if (engine->options().preset == "perframe")
+        if (!engine->has_atlas())
             throw Error("the perframe preset has no atlas to edit (refit with --preset fast)");
         torch::Tensor base = layer == "bg" ? engine->model().atlas_bg() : engine->model().atlas_fg();
         if (!base.defined()) throw Error("the fit has one layer: no foreground atlas (use --layer bg)");

@@ -191,11 +191,12 @@ const Bench kBenches[] = {
      "             [--tensor-reps N] [--no-tensor] [--tensor-max-gb G]\n"
      "             lens blur layer: fast path vs LibTorch tensor ops"},
     {"fit", bench_fit,
-     "fit --clip <synth-dir> [--preset fast|paper|perframe] [--minutes M] [--oracle-coc] [--oracle-mask]\n"
-     "             [--at 0.5,1,2,5,10] [--csv out.csv]\n"
+     "fit --clip <synth-dir> [--preset P] [--minutes M] [--iters N] [--oracle-coc | --coc <pattern>]\n"
+     "             [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv] [--batch N]\n"
+     "             [--seed S] [--work <dir>] [--set name=value]...\n"
      "             run time against error: sharp PSNR/SSIM/tPSNR vs ground truth, reblur PSNR"},
     {"motion", bench_motion,
-     "motion --clip <synth-dir> [--pairs]\n"
+     "motion --clip <synth-dir> [--pairs] [--dump <dir>]\n"
      "             camera motion (prepare's homographies) against the clip's true wall motion"},
     {"kernel", bench_kernel,
      "kernel --clip <synth-dir> [--frames 0,10,20] [--scales 1]\n"

@@ -58,17 +58,28 @@ private:
 }  // namespace
 
 int cmd_fit(int argc, char** argv) {
-    Args a(argc, argv, 2, {"resume", "reprepare"});
+    Args a(argc, argv, 2, {"resume", "reprepare", "list-settings"});
     a.check_known({"preset", "minutes", "iters", "coc", "mask", "seed", "resume", "batch",
-                   "checkpoint-seconds", "reprepare"});
+                   "checkpoint-seconds", "reprepare", "set", "list-settings"});
+    if (a.has("list-settings")) {
+        std::printf("%s", settings_table().c_str());
+        return 0;
+    }
     if (a.positional().size() != 1)
-        throw Error("usage: refocus fit <project> [--preset fast|paper|perframe] [--minutes M | "
-                    "--iters N] [--coc <pattern>] [--mask <pattern>] [--seed S] [--batch N] [--resume]");
+        throw Error("usage: refocus fit <project> [--preset " + preset_names() +
+                    "] [--minutes M | --iters N] [--coc <pattern>] [--mask <pattern>] [--seed S] "
+                    "[--batch N] [--set name=value]... [--resume] | refocus fit --list-settings");
     Project project = Project::load(a.positional()[0]);
     FitSettings s = read_fit_settings(project);
     const bool resume = a.has("resume");
+    // A new fit keeps the project's settings (a resumed one must: its checkpoint was trained
+    // with them); --set changes them.
+    Settings settings = s.fit.settings;
     if (!resume) s = FitSettings{};
+    for (const auto& assignment : a.get_all("set")) settings.set_assignment(assignment);
+    use_settings(s, settings);
     s.fit.preset = a.get("preset", s.fit.preset);
+    find_preset(s.fit.preset);
     if (a.has("minutes") || a.has("iters")) {
         s.fit.minutes = a.get_double("minutes", 0.0);
         s.fit.iters = a.get_int("iters", 0);
@@ -77,7 +88,7 @@ int cmd_fit(int argc, char** argv) {
     if (s.fit.minutes < 0 || s.fit.iters < 0) throw Error("--minutes and --iters must be positive");
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", static_cast<int>(s.fit.seed)));
     if (a.has("batch")) s.fit.batch = checked_batch_arg(a.get_int("batch", 0));  // frames per step; left out: the model's choice
-    s.fit.checkpoint_seconds = a.get_double("checkpoint-seconds", 60.0);
+    if (a.has("checkpoint-seconds")) s.fit.checkpoint_seconds = a.get_double("checkpoint-seconds", 60.0);
     if (a.has("coc")) s.setup.coc_path = a.get("coc");
     if (a.has("mask")) s.setup.mask_path = a.get("mask");
     s.setup.force_prepare = a.has("reprepare");

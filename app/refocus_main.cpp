@@ -8,6 +8,8 @@
 #include <string>
 
 #include "commands.h"
+#include "fit/presets.h"
+#include "util/debug.h"
 #include "util/threads.h"
 
 namespace {
@@ -24,23 +26,26 @@ const Command kCommands[] = {
      "ingest a video or image sequence into a new project"},
     {"info", refocus::cmd_info, "info <clip-or-project>",
      "print size, frames, fps and what a project holds"},
-    {"bench", refocus::cmd_bench, "bench blur [--size WxH] [--kernel disk|pillbox|gaussian]",
-     "print benchmark figures (bench with no name lists them)"},
+    {"bench", refocus::cmd_bench, "bench blur|fit|motion|kernel|bound [options]",
+     "print benchmark figures (bench with no name lists them with their options)"},
     {"fit", refocus::cmd_fit,
-     "fit <project> [--preset fast|paper|perframe] [--minutes M | --iters N] [--coc <pattern>]\n"
-     "           [--mask <pattern>] [--seed S] [--batch N] [--resume]",
+     "fit <project> [--preset P] [--minutes M | --iters N] [--coc <pattern>]\n"
+     "           [--mask <pattern>] [--seed S] [--batch N] [--set name=value]... [--resume]\n"
+     "           [--reprepare] [--checkpoint-seconds S]\n"
+     "       fit --list-settings",
      "fit sharp layered atlases to the project's clip (checkpoints; --resume continues);\n"
      "           --coc: per-frame EXR circle-of-confusion radii in px, instead of the estimate;\n"
-     "           --batch: frames per step (left out: 4 where a layer has the deblurring path, else 2)"},
+     "           --batch: frames per step (left out: 4 where a layer has the deblurring path, else 2);\n"
+     "           --set: a tuning setting (kept in project.json; --list-settings lists them)"},
     {"export", refocus::cmd_export,
-     "export <project> --what sharp|reblur|atlas|alpha|coc|uv|all [--format png|exr|tiff|mp4]\n"
-     "           --out <dir-or-file>",
+     "export <project> --what sharp|reblur|atlas|alpha|coc|uv|refocus|depth|all\n"
+     "           [--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>",
      "write the fit's results: sequences <what>_%04d.<ext> from 0, or an mp4"},
     {"atlas", refocus::cmd_atlas,
      "atlas <project> --import <file> --layer bg|fg | --clear [--layer bg|fg]",
      "bring back a repainted atlas (PNG/TIFF/EXR): the edit follows every frame"},
     {"synth", refocus::cmd_synth,
-     "synth --scene rack|walkout|pan|hunt|list -o <dir> [--size WxH] [--frames N] [--seed S]",
+     "synth --scene rack|walkout|pan|hunt|tripod|list -o <dir> [--size WxH] [--frames N] [--seed S]",
      "render a misfocused test clip with exact ground truth (sharp, COC, alpha, flow)"},
 };
 
@@ -49,9 +54,15 @@ void print_help() {
         "refocus - fix misfocused video: fit sharp layered atlases, refocus, export\n\n"
         "usage: refocus <command> [options]\n\ncommands:\n");
     for (const auto& c : kCommands) std::printf("  %-8s %s\n           %s\n", c.name, c.help, c.usage);
+    std::printf("\npresets (fit --preset):\n");
+    for (const auto& p : refocus::fit_presets())
+        std::printf("  %-8s %s\n", p.name.c_str(), p.description.c_str());
     std::printf(
         "\nClips are video files (mp4, mov, mkv, avi) or image sequences: a folder, or a\n"
-        "printf pattern such as shot/frame_%%04d.exr (PNG, JPEG, TIFF, OpenEXR).\n");
+        "printf pattern such as shot/frame_%%04d.exr (PNG, JPEG, TIFF, OpenEXR).\n"
+        "Any command takes --debug <what>[,<what>...] for diagnostics:");
+    for (const auto& [name, help] : refocus::debug_names()) std::printf(" %s", name.c_str());
+    std::printf("\n");
 }
 
 }  // namespace
@@ -73,9 +84,26 @@ int main(int argc, char** argv) {
         std::printf("refocus 0.1.0\n");
         return 0;
     }
+    // --debug is every command's: taken out here, so that commands see only their own options.
+    std::string debug;
+    for (int i = 2; i < argc; ++i) {
+        std::string a = argv[i];
+        if (a == "--debug" && i + 1 < argc) {
+            debug += (debug.empty() ? "" : ",") + std::string(argv[i + 1]);
+            for (int k = i; k + 2 <= argc; ++k) argv[k] = argv[k + 2];
+            argc -= 2;
+            --i;
+        } else if (a.rfind("--debug=", 0) == 0) {
+            debug += (debug.empty() ? "" : ",") + a.substr(8);
+            for (int k = i; k + 1 <= argc; ++k) argv[k] = argv[k + 1];
+            argc -= 1;
+            --i;
+        }
+    }
     for (const auto& c : kCommands) {
         if (std::strcmp(argv[1], c.name) != 0) continue;
         try {
+            if (!debug.empty()) refocus::set_debug(debug);
             refocus::init_threads();
             return c.run(argc, argv);
         } catch (const std::exception& e) {

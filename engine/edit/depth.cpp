@@ -638,7 +638,7 @@ DepthModel DepthModel::load(const fs::path& dir) {
 // ---------------------------------------------------------------- from a fit
 
 DepthModel build_depth(FitEngine& engine, const DepthFitOptions& opts) {
-    if (engine.options().preset == "perframe")
+    if (!engine.has_atlas())
         throw Error("depth: the perframe preset has no atlas to hold depth (use fast or paper)");
     torch::NoGradGuard no_grad;
     const FitData& data = engine.data();

@@ -4,6 +4,7 @@
 #include <torch/torch.h>
 
 #include "fit/fit_model.h"
+#include "util/debug.h"
 
 #include <opencv2/imgproc.hpp>
 
@@ -229,7 +230,7 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
         if (xi < 0 || yi < 0 || xi >= W || yi >= H) return -1;
         return mb[(u * H + yi) * W + xi];
     };
-    const bool debug = std::getenv("REFOCUS_DEBUG_MASKS") != nullptr;
+    const bool debug = debug_enabled("masks");
     int dropped = 0, filled = 0;
     std::vector<double> area(T, 0.0);
     std::vector<torch::Tensor> kept;

@@ -13,6 +13,7 @@
 #include "ops/lens_blur.h"
 
 #include <opencv2/video/tracking.hpp>
+#include "util/debug.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -133,9 +134,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     // its feature homographies are mostly noise (synth tripod: 1.2 px of corner motion, all of it
     // error). A hand-held "static" shot still shakes by a pixel (synth walkout: 1.5 px), which
     // ECC against the reblurred fused atlas finds; on a locked-off camera it finds ~0.
-    bool static_align = true;
-    if (const char* e = std::getenv("REFOCUS_FAST_STATIC_ALIGN")) static_align = std::atoi(e) != 0;  // A/B hook
-    if (!d.static_camera || static_align) {
+    if (!d.static_camera || m_opts.static_align) {
         const auto before = m_bg.to_atlas.clone();
         refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false,
                          d.static_camera ? 2.0 : 4.0, d.static_camera);
@@ -258,7 +257,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
                     worst = std::max(worst, std::hypot(q[0].item<double>() / q[2].item<double>() - cx,
                                                        q[1].item<double>() / q[2].item<double>() - cy));
                 }
-            if (std::getenv("REFOCUS_DEBUG_ALIGN"))
+            if (debug_enabled("align"))
                 std::fprintf(stderr, "align round %d frame %lld: %s, corner shift %.2f px\n", round,
                              (long long)t, ok ? "ok" : "failed", worst);
             // A camera judged static moves only by hand shake: the translation is kept where the
@@ -274,7 +273,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
                 rho1 = cv::computeECC(tmpl, warped, mask);
                 ok = rho1 > 0.9 && rho1 > rho0 + 0.002;
             }
-            if (std::getenv("REFOCUS_DEBUG_ALIGN") && static_camera)
+            if (debug_enabled("align") && static_camera)
                 std::fprintf(stderr, "  static frame %lld: ECC coefficient %.4f -> %.4f\n", (long long)t, rho0, rho1);
             mats.push_back(ok && worst < max_shift ? torch::matmul(m, w) : m);
         }

@@ -12,6 +12,8 @@
 #include <vector>
 
 #include "fit/fit_model.h"
+#include "fit/presets.h"
+#include "fit/settings.h"
 #include "ops/lens_blur.h"
 
 namespace torch::optim {
@@ -47,6 +49,9 @@ struct FitOptions {
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both. Measured in README "How the fit works" 4.
     bool layer_radius = true;
+    // The settings the user changed (settings.h): the fields above (applied by FitEngine) and
+    // the preset model's options (applied by its factory, presets.h).
+    Settings settings;
 };
 
 // `--batch N` as typed: at least 1 (leaving it out lets the model choose, FitOptions::batch 0).
@@ -71,10 +76,12 @@ public:
     const std::vector<std::string>& model_notes() const;
 
     void step();              // one optimisation step (or one frame for `perframe`)
+    // Whether the preset keeps atlases (perframe does not: nothing to edit or take depth from).
+    bool has_atlas() const { return find_preset(m_opts.preset).has_atlas; }
     bool done() const;        // budget used up or stop requested
     // `perframe`: whether frame t has been deconvolved (frames not reached keep the input);
     // other presets: always true.
-    bool frame_done(int t) const { return m_model || (t >= 0 && t < (int)m_perframe_done.size() && m_perframe_done[t]); }
+    bool frame_done(int t) const { return m_model->frame_done(t); }
     void request_stop() { m_stop = true; }
     void set_paused(bool p) { m_paused = p; }
     bool paused() const { return m_paused; }
@@ -119,7 +126,7 @@ private:
     void build_model();
     void make_optimizer();
     double budget_fraction() const;
-    void step_perframe();
+    void step_self();  // a model that steps itself (FitModel::steps_itself)
 
     std::shared_ptr<FitData> m_data;
     FitOptions m_opts;
@@ -142,11 +149,7 @@ private:
     mutable std::mutex m_snap_mutex;
     std::mutex m_model_mutex;
     FitSnapshot m_snap;
-    torch::Tensor m_perframe;   // [T,3,H,W] results of the perframe preset
-    std::vector<bool> m_perframe_done;
 };
 
-// "fast", "paper" or "perframe"; throws with the list otherwise.
-std::unique_ptr<FitModel> make_model(const std::string& preset, const FitData& data, uint64_t seed);
 
 }  // namespace refocus

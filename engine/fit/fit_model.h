@@ -7,6 +7,7 @@
 #include <torch/types.h>
 
 #include <map>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -39,11 +40,11 @@ struct FitData {
     bool radius_given = false;
     // Atlas texels per frame pixel (choose_atlas_scale, fit_setup.h; a checkpoint keeps its own).
     double atlas_scale = 1;
-    // The subject's track as builds before the eighth session made it (mask centroids), for
-    // their checkpoints (FitEngine::load_checkpoint sets it); new fits chain the flow.
+    // Subject tracks of older checkpoints (checkpoint.cpp sets them from "subject_track"):
+    // "centroid" placed the subject's atlas on its masks' centroids; "flow" chained the flow
+    // over the masks as stored and stepped over a frame without a mask by the centroids. New
+    // fits ("flow-v2") clean the masks along the track first.
     bool legacy_subject_track = false;
-    // As the eighth session's builds: the masks as stored (not cleaned along the track) and a
-    // frame without a mask stepped by the masks' centroids (FitEngine::load_checkpoint sets it).
     bool legacy_track_gaps = false;
     torch::Tensor mask_as_stored;  // [T,1,H,W] the automatic masks before clean_subject_masks
 
@@ -97,6 +98,14 @@ public:
     virtual torch::Tensor atlas_fg() = 0;
     virtual void set_atlas_bg(const torch::Tensor& rgb) = 0;
     virtual void set_atlas_fg(const torch::Tensor& rgb) = 0;
+    // A model that is not trained by gradient steps on the reconstruction loss (perframe, which
+    // deconvolves one frame a step) steps itself: the engine calls step_itself(step) instead,
+    // the fit ends after step_count() steps, and frame_done(t) says which frames it reached.
+    // `commit` guards the model's tensors while the UI renders: lock it only to write them.
+    virtual bool steps_itself() const { return false; }
+    virtual void step_itself(int64_t step, std::mutex& commit) {}
+    virtual int64_t step_count() const { return -1; }  // -1: the budget decides
+    virtual bool frame_done(int t) const { return true; }
     // Named tensors that fully determine the model (for checkpoints).
     virtual std::map<std::string, torch::Tensor> state() = 0;
     // Copies `s` into the tensors of state(), checking that every name is there with the

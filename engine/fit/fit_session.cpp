@@ -19,6 +19,13 @@ using nlohmann::json;
 
 fs::path fit_dir(const Project& project) { return project.dir / "fit"; }
 
+void use_settings(FitSettings& s, const Settings& settings) {
+    s.fit.settings = settings;
+    s.setup.settings = settings;
+    apply_settings(settings, s.fit);
+    apply_settings(settings, s.setup);
+}
+
 FitSettings read_fit_settings(const Project& p) {
     FitSettings s;
     if (!p.sections.contains("fit")) return s;
@@ -32,12 +39,14 @@ FitSettings read_fit_settings(const Project& p) {
         s.fit.batch = f.value("batch", s.fit.batch);
         s.setup.coc_path = f.value("coc", std::string());
         s.setup.mask_path = f.value("mask", std::string());
-        // Projects fitted before the tenth session carry no kernel: they were fitted with the
-        // paper's disk, and keep it (their checkpoints' atlases and radii are in its terms).
+        // A project that names no kernel was fitted with the paper's disk, and keeps it (its
+        // checkpoints' atlases and radii are in its terms).
         s.setup.kernel = f.value("kernel", std::string("disk"));
+        if (f.contains("settings")) s.fit.settings.set_json(f["settings"], label + ": fit.settings");
     } catch (const json::exception& e) {
         throw Error(file_error(label, std::string("malformed 'fit' section: ") + e.what()));
     }
+    use_settings(s, s.fit.settings);
     try {
         fit_kernel_params(s.setup.kernel);
     } catch (const Error& e) {
@@ -59,6 +68,7 @@ void write_fit_settings(Project& p, const FitSettings& s, const FitSnapshot* sna
               {"iters", s.fit.iters},   {"batch", s.fit.batch},   {"coc", rel(s.setup.coc_path)},
               {"mask", rel(s.setup.mask_path)}, {"kernel", s.setup.kernel},
               {"checkpoint", "fit/checkpoint.json"}};
+    if (!s.fit.settings.empty()) f["settings"] = s.fit.settings.to_json();
     if (snap)
         f["status"] = {{"state", snap->status},
                        {"step", snap->step},
@@ -113,7 +123,7 @@ namespace {
 std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const ProjectEdits* e) {
     if (!e || !e->has_edits()) return {};
     std::lock_guard<std::mutex> lock(engine.model_mutex());
-    if (engine.options().preset == "perframe")
+    if (!engine.has_atlas())
         throw Error("the project has atlas edits but the perframe preset has no atlas");
     torch::NoGradGuard g;
     torch::Tensor fg = engine.model().atlas_fg();
@@ -147,7 +157,7 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
             files.push_back(path);
         };
         std::lock_guard<std::mutex> lock(engine.model_mutex());
-        if (engine.options().preset == "perframe")
+        if (!engine.has_atlas())
             throw Error("the perframe preset has no atlas (it deconvolves each frame alone)");
         write(engine.model().atlas_bg(), d_bg, "bg");
         write(engine.model().atlas_fg(), d_fg, "fg");

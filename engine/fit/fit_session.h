@@ -19,6 +19,8 @@ struct FitSettings {
     FitOptions fit;
     FitSetupOptions setup;
 };
+// Sets the user's settings on both parts (settings.h) and applies those of their fields.
+void use_settings(FitSettings& s, const Settings& settings);
 // Reads project.json's "fit" section (throws naming the field when it is malformed).
 FitSettings read_fit_settings(const Project& project);
 // Writes the settings and the engine's status into the "fit" section and saves project.json.

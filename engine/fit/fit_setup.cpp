@@ -50,21 +50,17 @@ std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps
 // from: prep/stack_coc_%04d.exr and prep/stack_coc.json (written last) holding a key of its
 // inputs (prepare.json's content, the layer decision). Opening a fitted project, exporting and
 // the studio then reuse it; a new prepare or another decision recomputes it.
-std::string absolute_key() {  // the A/B hooks of stack_coc.cpp change the result
-    const char* e = std::getenv("REFOCUS_ABSOLUTE_BLUR");
-    std::string key = e && std::atoi(e) == 0 ? "/relative" : "/absolute";
-    for (const char* name : {"REFOCUS_FLOOR_MAX", "REFOCUS_FILL_CELLS", "REFOCUS_FLOOR_LO", "REFOCUS_FLOOR_HI",
-                             "REFOCUS_GATE_CLEAR", "REFOCUS_SPECTRAL_BLUR"})
-        if (const char* v = std::getenv(name)) key += std::string("/") + name + "=" + v;
-    return key;
-}
-
-std::string stack_key(const Project& project, const FitData& d) {
+// The radius.* settings shape the estimate: the key holds the ones that differ from the default.
+std::string stack_key(const Project& project, const FitData& d, const FitSetupOptions& opts) {
+    StackCocOptions so;
+    apply_settings(opts.settings, so);
+    const std::string settings_key = std::string(so.absolute ? "/absolute" : "/relative") +
+                                     opts.settings.key("radius.");
     const std::string prep = read_text_file(fs::path(prepare_dir(project)) / "prepare.json");
     // The radius is measured in the kernel's units: a pillbox's differs from the disk's.
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
            (d.static_camera ? "/static" : "/moving") +
-           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v12" + absolute_key();
+           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v12" + settings_key;
 }
 
 fs::path stack_frame_path(const Project& project, int t) {
@@ -102,7 +98,7 @@ void save_stack_radius(const Project& project, const torch::Tensor& radius, cons
 
 }  // namespace
 
-std::string choose_atlas_scale(FitData& d, bool radius_given) {
+std::string choose_atlas_scale(FitData& d, bool radius_given, double forced) {
     // A 1x atlas resampled to a frame's sub-pixel position loses the in-focus detail the frame
     // held: fine texture sits above what a 1x grid carries when shifted (synth pan, the wall's
     // in-focus top rows: the input 35.3 dB, the fitted 1x atlas 29.9; the ground truth itself
@@ -139,16 +135,11 @@ std::string choose_atlas_scale(FitData& d, bool radius_given) {
         d.atlas_scale = 2;
         why = "moving camera, " + fmt2(100 * in_focus) + "% of pixels in focus";
     }
-    if (const char* e = std::getenv("REFOCUS_FAST_ATLAS_SCALE")) {  // A/B hook
-        d.atlas_scale = std::clamp(std::atof(e), 1.0, 4.0);
-        why = "REFOCUS_FAST_ATLAS_SCALE";
+    if (forced > 0) {
+        d.atlas_scale = std::clamp(forced, 1.0, 4.0);
+        why = "the fast.atlas_scale setting";
     }
     return "fit (fast): atlas at " + std::string(d.atlas_scale == 1 ? "1" : d.atlas_scale == 2 ? "2" : fmt2(d.atlas_scale)) + "x the frame's resolution (" + why + ")";
-}
-
-std::string default_fit_kernel() {
-    const char* k = std::getenv("REFOCUS_FIT_KERNEL");
-    return k && *k ? k : "pillbox";
 }
 
 LensBlurParams fit_kernel_params(const std::string& kernel) {
@@ -285,13 +276,15 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     }
     if (opts.coc_path.empty()) {
         if (d->frames >= 3 && !opts.single_image_coc) {
-            const std::string key = stack_key(project, *d);
+            const std::string key = stack_key(project, *d, opts);
             torch::Tensor cached = load_stack_radius(project, *d, key, d->fixed_focus_share);
             if (cached.defined()) {
                 d->radius = cached;
             } else {
                 StackCocReport report;
-                d->radius = estimate_radius_from_stack(*d, {}, &report);
+                StackCocOptions so;
+                apply_settings(opts.settings, so);
+                d->radius = estimate_radius_from_stack(*d, so, &report);
                 d->fixed_focus_share = report.fixed_focus_share;
                 log.info("radius: " + report.summary);
                 try {
@@ -308,7 +301,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         }
     }
     d->radius_given = !opts.coc_path.empty();
-    log.info(choose_atlas_scale(*d, d->radius_given));
+    log.info(choose_atlas_scale(*d, d->radius_given, opts.atlas_scale));
     log.info(std::string("fit: ") + (d->static_camera ? "static camera, no learned background warp"
                                                       : "moving camera, learned residual warp") +
              ", " + (d->has_subject ? "two layers (moving subject)" : "one layer (no moving subject)"));

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <random>
 
+#include "util/debug.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -86,25 +87,6 @@ torch::Tensor AtlasDecoderImpl::forward(const torch::Tensor& z) { return net->fo
 
 PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint64_t seed)
     : m_data(d), m_opts(options), m_seed(seed) {
-    // Tuning hooks for the benches (as the fast preset's): REFOCUS_PAPER_<NAME>=value.
-    auto env = [](const char* name, auto& v) {
-        if (const char* e = std::getenv(name)) v = static_cast<std::decay_t<decltype(v)>>(std::atof(e));
-    };
-    env("REFOCUS_PAPER_W_SPARSITY", m_opts.w_sparsity);
-    env("REFOCUS_PAPER_W_FLOW", m_opts.w_flow);
-    env("REFOCUS_PAPER_W_RIGID", m_opts.w_rigid);
-    env("REFOCUS_PAPER_W_BOOTSTRAP", m_opts.w_bootstrap);
-    env("REFOCUS_PAPER_LR_DECODER", m_opts.lr_decoder);
-    env("REFOCUS_PAPER_LR_MAP", m_opts.lr_map);
-    env("REFOCUS_PAPER_LR_ALPHA", m_opts.lr_alpha);
-    env("REFOCUS_PAPER_PRETRAIN_MAP", m_opts.pretrain_map_steps);
-    env("REFOCUS_PAPER_PRETRAIN_ATLAS", m_opts.pretrain_atlas_steps);
-    env("REFOCUS_PAPER_STRIDE", m_opts.mlp_stride);
-    env("REFOCUS_PAPER_W_RECO", m_opts.w_reco);
-    env("REFOCUS_PAPER_SPARSITY_START", m_opts.sparsity_start);
-    env("REFOCUS_PAPER_SPARSITY_RAMP", m_opts.sparsity_ramp);
-    env("REFOCUS_PAPER_RESIDUAL_PX", m_opts.residual_px);
-    env("REFOCUS_PAPER_LR_PRETRAIN_ATLAS", m_opts.lr_pretrain_atlas);
     const PaperModelOptions& opts = m_opts;
     if (opts.decoder_channels.size() != 3)
         throw Error("paper preset: the atlas decoder has 3 pixel-shuffle stages (atlas = 8 × noise)");
@@ -180,7 +162,7 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
         pretrain_mappings();
         const auto t1 = std::chrono::steady_clock::now();
         pretrain_atlases(fb, ff);
-        if (std::getenv("REFOCUS_DEBUG_PAPER"))
+        if (debug_enabled("paper"))
             std::fprintf(stderr, "paper: atlas bg %lldx%lld fg %lldx%lld; pretrain maps %.1f s, atlases %.1f s\n",
                          (long long)m_bg.width, (long long)m_bg.height, (long long)m_fg.width,
                          (long long)m_fg.height, std::chrono::duration<double>(t1 - t0).count(),
@@ -313,7 +295,7 @@ void PaperModel::pretrain_mappings() {
         opt.zero_grad();
         loss.backward();
         opt.step();
-        if (std::getenv("REFOCUS_DEBUG_PAPER") && it + 1 == m_opts.pretrain_map_steps)
+        if (debug_enabled("paper") && it + 1 == m_opts.pretrain_map_steps)
             std::fprintf(stderr, "paper: alpha pre-training loss %.4g\n", loss.item<double>());
     }
 }
@@ -327,9 +309,9 @@ void PaperModel::pretrain_atlases(const torch::Tensor& fused_bg, const torch::Te
         opt.zero_grad();
         loss.backward();
         opt.step();
-        if (std::getenv("REFOCUS_DEBUG_PAPER") && it + 1 == m_opts.pretrain_atlas_steps)
+        if (debug_enabled("paper") && it + 1 == m_opts.pretrain_atlas_steps)
             std::fprintf(stderr, "paper: atlas pre-training L1 %.4g\n", loss.item<double>());
-        if (std::getenv("REFOCUS_DEBUG_PAPER") && it % 50 == 0)
+        if (debug_enabled("paper") && it % 50 == 0)
             std::fprintf(stderr, "paper: atlas pre-training step %d L1 %.4g target bg mean %.3g fg mean %.3g\n", it,
                          loss.item<double>(), fused_bg.mean().item<double>(),
                          fused_fg.defined() ? fused_fg.mean().item<double>() : 0.0);

@@ -333,6 +333,204 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     return torch::zeros({Hc, Wc});
 }
 
+// The layer's frames on a canvas in reference coordinates and their all-in-focus composite.
+struct LayerComposite {
+    int64_t Hc = 0, Wc = 0;
+    torch::Tensor to_canvas;                // [T,3,3] float64 frame → canvas
+    std::vector<torch::Tensor> reg_valid;   // per frame [1,Hc,Wc]: 1 where the frame covers the canvas
+    torch::Tensor aif;                      // [3,Hc,Wc] all-in-focus composite
+    torch::Tensor covered;                  // [1,1,Hc,Wc] where the composite has a view
+    torch::Tensor own_seen;                 // [Hc,Wc] where the composite is the layer's own
+};
+
+// 1. Every frame on a canvas that covers all of them (canvas pixel p reads frame t at
+//    to_canvas_t⁻¹ p): on a canvas of the reference frame's size, read with border padding,
+//    content entering a pan later took smeared border pixels as its "sharpest view".
+// 2. All-in-focus: local contrast (box-filtered squared Laplacian of luma) picks, softly, the
+//    sharpest frame at each pixel among the views whose contrast window lies inside their frame.
+LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in, const torch::Tensor& region,
+                               const StackCocOptions& o) {
+    const int64_t T = d.frames, H = d.height, W = d.width;
+    LayerComposite c;
+    const AtlasBox box_ref = mapped_frames_box(to_ref_in, H, W);
+    c.Hc = box_ref.height;
+    c.Wc = box_ref.width;
+    const int64_t Hc = c.Hc, Wc = c.Wc;
+    c.to_canvas = torch::matmul(translation(-box_ref.origin_x, -box_ref.origin_y).unsqueeze(0),
+                                to_ref_in.to(torch::kFloat64));
+    auto ones = torch::ones({1, 1, H, W});
+    std::vector<torch::Tensor> reg, reg_region;
+    for (int64_t t = 0; t < T; ++t) {
+        auto inv = torch::inverse(c.to_canvas[t]);
+        reg.push_back(warp(d.input[t].unsqueeze(0), inv, Hc, Wc)[0]);
+        c.reg_valid.push_back((warp(ones, inv, Hc, Wc, true)[0] > 0.999).to(torch::kFloat32));
+        if (region.defined()) reg_region.push_back(warp(region[t].unsqueeze(0), inv, Hc, Wc, true)[0].clamp(0, 1));
+    }
+    auto stack = torch::stack(reg);  // [T,3,Hc,Wc]
+    auto luma = (0.299 * stack.select(1, 0) + 0.587 * stack.select(1, 1) + 0.114 * stack.select(1, 2)).unsqueeze(1);
+    auto lap = F::conv2d(F::pad(luma, F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kReplicate)),
+                         torch::tensor({0.f, 1.f, 0.f, 1.f, -4.f, 1.f, 0.f, 1.f, 0.f}).view({1, 1, 3, 3}));
+    auto valid = erode(torch::stack(c.reg_valid), o.contrast_window + 1);  // [T,1,Hc,Wc]
+    auto contrast = box(lap.pow(2), o.contrast_window) * valid;
+    auto w = (contrast / contrast.amax({0}, true).clamp_min(1e-12)).pow(8) * valid;
+    c.own_seen = (w.sum(0)[0] > 1e-6).to(torch::kFloat32);
+    if (region.defined()) {
+        // The layer's own views first, weighed against the sharpest of them (against every
+        // view's sharpest, a wall point seen blurred after a sharp subject had stood over it
+        // counted as never seen and kept no floor); where the layer is never seen, every view.
+        auto own = (torch::stack(reg_region) > 0.5).to(torch::kFloat32);  // [T,1,Hc,Wc]
+        auto co = contrast * own;
+        auto wo = (co / co.amax({0}, true).clamp_min(1e-12)).pow(8) * valid * own;
+        w = torch::where(wo.sum(0, true) > 1e-6, wo, w);
+        c.own_seen = (wo.sum(0)[0] > 1e-6).to(torch::kFloat32);
+    }
+    auto wsum = w.sum(0);                                       // [1,Hc,Wc]
+    c.aif = (stack * w).sum(0) / wsum.clamp_min(1e-12);         // [3,Hc,Wc]
+    c.covered = (wsum > 1e-12).to(torch::kFloat32).unsqueeze(0);  // [1,1,Hc,Wc]
+    return c;
+}
+
+// 3. Frame t's radius relative to the composite: the blur of the composite that matches the
+//    frame best, locally; 4. spread from where the match is measured into flat regions. [H,W]
+torch::Tensor relative_radius(const FitData& d, const LayerComposite& c, const torch::Tensor& region, int64_t t,
+                              const StackCocOptions& o) {
+    const int64_t H = d.height, W = d.width;
+    std::vector<double> radii;
+    for (double r = 0; r <= o.rmax + 1e-9; r += o.rstep) radii.push_back(r);
+    const int64_t K = radii.size();
+    const LensBlurParams& bp = d.blur;
+    auto aif_t = warp(c.aif.unsqueeze(0), c.to_canvas[t], H, W)[0].contiguous();
+    // Pixels whose matching window reads canvas the composite does not cover are not measured.
+    auto seen = erode(warp(c.covered, c.to_canvas[t], H, W, true).gt(0.999).to(torch::kFloat32), o.window)[0][0];
+    std::vector<torch::Tensor> costs;
+    for (double r : radii) {
+        auto b = r < bp.min_radius ? aif_t : lens_blur(aif_t, torch::full({H, W}, float(r)), bp);
+        costs.push_back((b - d.input[t]).pow(2).sum(0, true));
+    }
+    auto cost = box(torch::stack(costs), o.window).squeeze(1);  // [K,H,W]
+    auto best = cost.argmin(0);                                  // [H,W]
+    // Sub-step refinement: parabola through the neighbours of the minimum.
+    auto bi = best.clamp(1, K - 2);
+    auto c0 = cost.gather(0, (bi - 1).unsqueeze(0))[0], c1 = cost.gather(0, bi.unsqueeze(0))[0],
+         c2 = cost.gather(0, (bi + 1).unsqueeze(0))[0];
+    auto denom = (c0 - 2 * c1 + c2);
+    auto off = torch::where(denom > 1e-12, 0.5 * (c0 - c2) / denom.clamp_min(1e-12), torch::zeros_like(denom))
+                   .clamp(-0.5, 0.5);
+    auto interior = (best >= 1) & (best <= K - 2);
+    auto r = best.to(torch::kFloat32) * o.rstep + torch::where(interior, off, torch::zeros_like(off)) * o.rstep;
+    auto cmin = std::get<0>(cost.min(0));
+    auto conf = (std::get<0>(cost.max(0)) - cmin) / (float(2 * o.window + 1) * (2 * o.window + 1));
+    // Explained variance: the composite blurred to the right radius explains nearly all of the
+    // frame's local variance where it is the same content. Where it is other content (a mask
+    // holding wall texture, a bad registration) the cost only falls with r as blur flattens the
+    // mismatch to its mean, and its minimum, at a large r, explains little.
+    auto frame = d.input[t].unsqueeze(0);
+    auto var = (box(frame.pow(2), o.window) - box(frame, o.window).pow(2)).sum(1)[0].clamp_min(1e-8);
+    auto explained = 1.0 - cmin / var;
+    auto trust = ((explained - o.min_explained) / (1.0 - o.min_explained)).clamp(0, 1);
+    auto wt = (conf > o.min_confidence).to(torch::kFloat32).mul(conf) * seen * trust;
+    if (region.defined()) wt = wt * (region[t][0] > 0.5).to(torch::kFloat32);
+    Image guide = tensor_to_image(d.input[t].mean(0, true));
+    Image src = tensor_to_image(r.unsqueeze(0));
+    Image weight = tensor_to_image(wt.unsqueeze(0));
+    // Near first: a window of `spread_px` keeps a flat subject (a face before a textured wall of
+    // the same luma) from taking its neighbours' radius; what stays uncovered takes the wide pass.
+    Image cover_near, cover_far;
+    Image near = weighted_guided_filter(guide, src, weight, o.spread_px, 1e-3, &cover_near);
+    Image far = weighted_guided_filter(guide, src, weight, std::max<int>(o.spread_px, std::min(H, W) / 10), 1e-3,
+                                       &cover_far);
+    auto fn = image_to_tensor(near)[0], ff = image_to_tensor(far)[0];
+    auto has_near = image_to_tensor(cover_near)[0] > 0, has_far = image_to_tensor(cover_far)[0] > 0;
+    // Where nothing near was measured, no evidence of blur: radius 0 keeps the frame as it is
+    // (the raw argmin there is whatever flattened a mismatch best, often the largest radius).
+    return torch::where(has_near, fn, torch::where(has_far, ff, torch::zeros_like(ff))).clamp(0.0, o.rmax);
+}
+
+// The largest relative radius any view reads at each canvas point [1,1,Hc,Wc]: where it is
+// small, focus never changed there. Views near the other layer do not count where the point has
+// views clear of it (the other layer's blurred rim passing over reads as a change of focus).
+// Under a floor from tile spectra the views' quantile counts instead of their largest: there
+// the largest is the stack's error, and a change of focus shows in many views.
+torch::Tensor relative_max(const FitData& d, const LayerComposite& c, const torch::Tensor& region,
+                           const std::vector<torch::Tensor>& out, bool spectral, const StackCocOptions& o) {
+    const int64_t T = d.frames, H = d.height, W = d.width, Hc = c.Hc, Wc = c.Wc;
+    auto relmax = torch::zeros({1, 1, Hc, Wc});
+    auto relmax_clear = torch::zeros({1, 1, Hc, Wc}), clear_seen = torch::zeros({1, 1, Hc, Wc});
+    std::vector<torch::Tensor> rel_views, clear_views;
+    for (int64_t t = 0; t < T; ++t) {
+        auto inv = torch::inverse(c.to_canvas[t]);
+        auto rel = warp(out[t].view({1, 1, H, W}), inv, Hc, Wc, true);
+        relmax = torch::maximum(relmax, rel);
+        if (region.defined()) {
+            auto clear = warp(erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0), o.floor_gate_clear_px), inv,
+                              Hc, Wc, true)
+                             .gt(0.999)
+                             .to(torch::kFloat32);
+            relmax_clear = torch::maximum(relmax_clear, rel * clear);
+            clear_seen = torch::maximum(clear_seen, clear);
+            if (spectral) clear_views.push_back(clear * c.reg_valid[t]);
+        }
+        if (spectral) rel_views.push_back(torch::where(c.reg_valid[t] > 0.5, rel, torch::full_like(rel, NAN)));
+    }
+    if (region.defined()) relmax = torch::where(clear_seen > 0.5, relmax_clear, relmax);
+    if (spectral) {
+        auto R = torch::stack(rel_views);  // [T,1,1,Hc,Wc], NaN where the frame does not cover
+        if (region.defined()) {
+            auto C = torch::stack(clear_views) > 0.5;
+            R = torch::where(C | (clear_seen < 0.5).unsqueeze(0), R, torch::full_like(R, NAN));
+        }
+        relmax = torch::nan_to_num(torch::nanquantile(R, o.floor_gate_quantile_spectral, 0), 0.0);
+    }
+    return relmax;
+}
+
+// The absolute floor added to the relative radii `out` (in place), only where focus never
+// changed: a point some frame saw markedly blurrier than its sharpest view had a sharpest view
+// the stack trusts, and a floor there only adds the readings' errors (docs/method.md, Radius
+// estimation). The gate is 1 where the largest relative radius is under gate_lo, 0 over gate_hi.
+void add_absolute_floor(const FitData& d, const LayerComposite& c, const torch::Tensor& region,
+                        std::vector<torch::Tensor>& out, const StackCocOptions& o, std::string* report,
+                        double* fixed_share) {
+    const int64_t T = d.frames, H = d.height, W = d.width, Hc = c.Hc, Wc = c.Wc;
+    std::string line;
+    bool spectral = false;
+    auto floor = absolute_floor(d, c.to_canvas, region, out, c.own_seen, o, line, &spectral).view({1, 1, Hc, Wc});
+    auto relmax = relative_max(d, c, region, out, spectral, o);
+    // Under a large floor the relative readings are noisy by more than gate_lo, and a change of
+    // focus that matters there is a large one: the thresholds are at least these shares of it.
+    auto glo = torch::maximum(torch::full_like(floor, o.floor_gate_lo), o.floor_gate_rel_lo * floor);
+    auto ghi = torch::maximum(torch::full_like(floor, o.floor_gate_hi), o.floor_gate_rel_hi * floor);
+    ghi = torch::maximum(ghi, glo + 1e-3);
+    auto gate = ((ghi - relmax) / (ghi - glo)).clamp(0, 1);
+    const auto ungated = floor;
+    floor = floor * gate;
+    const double share =
+        floor.max().item<double>() > 0
+            ? gate.view({Hc, Wc}).masked_select(c.own_seen > 0.5).gt(0.5).to(torch::kFloat32).mean().item<double>()
+            : 0.0;
+    if (fixed_share) *fixed_share = share;
+    if (report) {
+        char buf[96];
+        std::snprintf(buf, sizeof buf, ", applied where focus never changed (%.0f%% of the layer)", 100.0 * share);
+        *report = line + (floor.max().item<double>() > 0 ? std::string(buf) : std::string());
+    }
+    for (int64_t t = 0; t < T; ++t) {
+        auto f0 = warp(floor, c.to_canvas[t], H, W)[0][0].clamp_min(0);
+        auto r = torch::sqrt(out[t] * out[t] + f0 * f0);  // second moments add
+        if (spectral) {
+            // Under a floor from tile spectra the layer is never sharper than the floor, so the
+            // floor holds as a least radius where the gate closes; where it is open, the radius
+            // is the floor itself (the relative readings there are the stack's error, and added
+            // in quadrature they put frame-to-frame jitter on a static wall).
+            auto u = warp(ungated, c.to_canvas[t], H, W)[0][0].clamp_min(0);
+            r = torch::maximum(r, u);
+            auto g = warp(gate, c.to_canvas[t], H, W)[0][0].clamp(0, 1);
+            r = g * u + (1 - g) * r;
+        }
+        out[t] = r.clamp(0.0, o.rmax);
+    }
+}
+
 // One layer's pass. `to_ref` [T,3,3] float64 registers the layer (frame → reference);
 // `region` [T,1,H,W] (frame coordinates) is where the layer is seen, or undefined for all of it.
 // Only the layer's own pixels enter its all-in-focus composite and spread into flat areas, so a
@@ -340,206 +538,10 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
 // does not lend the subject its radius.
 torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, const torch::Tensor& region,
                            const StackCocOptions& o, std::string* report, double* fixed_share = nullptr) {
-    const int64_t T = d.frames, H = d.height, W = d.width;
-    // 1. Every frame on a canvas in reference coordinates that covers all of them (canvas pixel
-    //    p reads frame t at to_canvas_t⁻¹ p). A canvas of the reference frame's own size, read
-    //    with border padding, gave content that enters a pan later smeared border pixels as its
-    //    "sharpest view": the synth pan clip's left strip read 4-8 px of blur on a wall in focus.
-    const AtlasBox box_ref = mapped_frames_box(to_ref_in, H, W);
-    const int64_t Hc = box_ref.height, Wc = box_ref.width;
-    auto to_canvas = torch::matmul(translation(-box_ref.origin_x, -box_ref.origin_y).unsqueeze(0),
-                                   to_ref_in.to(torch::kFloat64));
-    auto ones = torch::ones({1, 1, H, W});
-    std::vector<torch::Tensor> reg, reg_valid, reg_region;
-    for (int64_t t = 0; t < T; ++t) {
-        auto inv = torch::inverse(to_canvas[t]);
-        reg.push_back(warp(d.input[t].unsqueeze(0), inv, Hc, Wc)[0]);
-        reg_valid.push_back((warp(ones, inv, Hc, Wc, true)[0] > 0.999).to(torch::kFloat32));
-        if (region.defined()) reg_region.push_back(warp(region[t].unsqueeze(0), inv, Hc, Wc, true)[0].clamp(0, 1));
-    }
-    auto stack = torch::stack(reg);  // [T,3,Hc,Wc]
-    // 2. All-in-focus: local contrast (box-filtered squared Laplacian of luma) picks, softly,
-    //    the sharpest frame at each pixel, among the views whose contrast window lies inside
-    //    their frame.
-    auto luma = (0.299 * stack.select(1, 0) + 0.587 * stack.select(1, 1) + 0.114 * stack.select(1, 2)).unsqueeze(1);
-    auto lap = F::conv2d(F::pad(luma, F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kReplicate)),
-                         torch::tensor({0.f, 1.f, 0.f, 1.f, -4.f, 1.f, 0.f, 1.f, 0.f}).view({1, 1, 3, 3}));
-    auto valid = erode(torch::stack(reg_valid), o.contrast_window + 1);  // [T,1,Hc,Wc]
-    auto contrast = box(lap.pow(2), o.contrast_window) * valid;
-    auto w = (contrast / contrast.amax({0}, true).clamp_min(1e-12)).pow(8) * valid;
-    auto own_seen = (w.sum(0)[0] > 1e-6).to(torch::kFloat32);  // [Hc,Wc]: where the composite is the layer's
-    if (region.defined()) {
-        // The layer's own views first, weighed against the sharpest of them; where the layer is
-        // never seen, every view (a fallback that the final selection by region does not use
-        // anyway). Against every view's sharpest, a wall point seen blurred after a sharp subject
-        // had stood over it kept weights of (contrast ratio)^8 ~ 1e-8, counted as never seen, and
-        // kept no floor: synth walkout's wall read 0-0.6 px for 6 px on 27% of a 20x40 px block
-        // where the subject stood at first, in every later frame (wall MAE 0.115 -> 0.094 px;
-        // 600 steps 19.34 -> 19.63 dB, 10 min 19.70 -> 20.20).
-        auto own = (torch::stack(reg_region) > 0.5).to(torch::kFloat32);  // [T,1,Hc,Wc]
-        auto co = contrast * own;
-        auto wo = (co / co.amax({0}, true).clamp_min(1e-12)).pow(8) * valid * own;
-        w = torch::where(wo.sum(0, true) > 1e-6, wo, w);
-        own_seen = (wo.sum(0)[0] > 1e-6).to(torch::kFloat32);
-    }
-    auto wsum = w.sum(0);                                         // [1,Hc,Wc]
-    auto aif = (stack * w).sum(0) / wsum.clamp_min(1e-12);      // [3,Hc,Wc]
-    auto covered = (wsum > 1e-12).to(torch::kFloat32).unsqueeze(0);  // [1,1,Hc,Wc]
-
-    // 3. Per frame: the radius whose blur of the AIF matches the frame best, locally.
-    std::vector<double> radii;
-    for (double r = 0; r <= o.rmax + 1e-9; r += o.rstep) radii.push_back(r);
-    const int64_t K = radii.size();
+    const LayerComposite c = layer_composite(d, to_ref_in, region, o);
     std::vector<torch::Tensor> out;
-    const LensBlurParams& bp = d.blur;
-    for (int64_t t = 0; t < T; ++t) {
-        auto aif_t = warp(aif.unsqueeze(0), to_canvas[t], H, W)[0].contiguous();
-        // Pixels whose matching window reads canvas the composite does not cover are not measured.
-        auto seen = erode(warp(covered, to_canvas[t], H, W, true).gt(0.999).to(torch::kFloat32),
-                          o.window)[0][0];
-        std::vector<torch::Tensor> costs;
-        for (double r : radii) {
-            auto b = r < bp.min_radius ? aif_t : lens_blur(aif_t, torch::full({H, W}, float(r)), bp);
-            costs.push_back((b - d.input[t]).pow(2).sum(0, true));
-        }
-        auto c = box(torch::stack(costs), o.window).squeeze(1);  // [K,H,W]
-        auto best = c.argmin(0);                                  // [H,W]
-        // Sub-step refinement: parabola through the neighbours of the minimum.
-        auto bi = best.clamp(1, K - 2);
-        auto c0 = c.gather(0, (bi - 1).unsqueeze(0))[0], c1 = c.gather(0, bi.unsqueeze(0))[0],
-             c2 = c.gather(0, (bi + 1).unsqueeze(0))[0];
-        auto denom = (c0 - 2 * c1 + c2);
-        auto off = torch::where(denom > 1e-12, 0.5 * (c0 - c2) / denom.clamp_min(1e-12),
-                                torch::zeros_like(denom)).clamp(-0.5, 0.5);
-        auto interior = (best >= 1) & (best <= K - 2);
-        auto r = best.to(torch::kFloat32) * o.rstep + torch::where(interior, off, torch::zeros_like(off)) * o.rstep;
-        auto cmin = std::get<0>(c.min(0));
-        auto conf = (std::get<0>(c.max(0)) - cmin) / (float(2 * o.window + 1) * (2 * o.window + 1));
-        // Explained variance: a blurred composite that is the same content as the frame explains
-        // nearly all of the frame's local variance at the right radius. Where the composite is
-        // other content (a mask that holds wall texture moving against the subject, a bad
-        // registration) the cost only falls with r as blur flattens the mismatch to its mean, and
-        // its minimum, at a large r, explains little. Measured on the synth pan clip: a subject
-        // never in focus read 10.5-12.8 px (truth 7.15; relative to its sharpest view, 0).
-        auto frame = d.input[t].unsqueeze(0);
-        auto var = (box(frame.pow(2), o.window) - box(frame, o.window).pow(2)).sum(1)[0].clamp_min(1e-8);
-        auto explained = 1.0 - cmin / var;
-        auto trust = ((explained - o.min_explained) / (1.0 - o.min_explained)).clamp(0, 1);
-        // 4. Spread from where the match is measured (texture, on this layer) into flat regions.
-        auto wt = (conf > o.min_confidence).to(torch::kFloat32).mul(conf) * seen * trust;
-        if (region.defined()) wt = wt * (region[t][0] > 0.5).to(torch::kFloat32);
-        Image guide = tensor_to_image(d.input[t].mean(0, true));
-        Image src = tensor_to_image(r.unsqueeze(0));
-        Image weight = tensor_to_image(wt.unsqueeze(0));
-        // Near first: a window of `spread_px` keeps a flat subject (a face in front of a textured
-        // wall of the same luma) from taking its neighbours' radius; what stays uncovered takes
-        // the wide pass. Synth tripod clip (320x180), radius MAE on the subject over frames
-        // 0,3,..,27: one spread of H/10 = 18 px 1.65 px, the head read as wall in every frame
-        // (and the fit painted wall texture over it); 6 px, then 18: 1.04 px. 1-min fast: 27.16 ->
-        // 29.06 dB.
-        Image cover_near, cover_far;
-        Image near = weighted_guided_filter(guide, src, weight, o.spread_px, 1e-3, &cover_near);
-        Image far = weighted_guided_filter(guide, src, weight, std::max<int>(o.spread_px, std::min(H, W) / 10),
-                                           1e-3, &cover_far);
-        auto fn = image_to_tensor(near)[0], ff = image_to_tensor(far)[0];
-        auto has_near = image_to_tensor(cover_near)[0] > 0, has_far = image_to_tensor(cover_far)[0] > 0;
-        // Where nothing near was measured, no evidence of blur: radius 0 keeps the frame as it is
-        // (the raw argmin there is whatever flattened a mismatch best, often the largest radius).
-        auto ft = torch::where(has_near, fn, torch::where(has_far, ff, torch::zeros_like(ff))).clamp(0.0, o.rmax);
-        out.push_back(ft);
-    }
-    if (o.absolute) {  // absolute = the composite's own blur and the relative blur, moments added
-        std::string line;
-        bool spectral = false;
-        auto floor = absolute_floor(d, to_canvas, region, out, own_seen, o, line, &spectral).view({1, 1, Hc, Wc});
-        // Only where focus never changed: a point some frame saw markedly blurrier than its
-        // sharpest view (a focus change passed over it) had a sharpest view the stack trusts,
-        // and a floor there only adds the readings' errors. Measured at 300-600 steps with the
-        // floor everywhere: tripod 29.97 -> 25.69 dB, hunt 22.36 -> 19.04 (their floors read
-        // 0.1-0.8 px over walls in focus in some frame); rack unchanged. The gate is 1 where the
-        // largest relative radius any frame sees at the point is under gate_lo, 0 over gate_hi:
-        // with the gate at 1.5-2.5 px, tripod 29.97 and hunt 22.36 (as without a floor), pan
-        // 21.27 (92% of its wall keeps the floor; at 0.75-1.5 px, 82% and 21.10).
-        auto relmax = torch::zeros({1, 1, Hc, Wc});
-        // Views near the other layer do not count where the point has views clear of it: there
-        // the other layer's blurred rim (a subject at 7 px over a wall) passes over the point
-        // and reads as a change of focus. Synth pan: the wall the subject crossed kept no floor.
-        auto relmax_clear = torch::zeros({1, 1, Hc, Wc}), clear_seen = torch::zeros({1, 1, Hc, Wc});
-        std::vector<torch::Tensor> rel_views, clear_views;
-        for (int64_t t = 0; t < T; ++t) {
-            auto inv = torch::inverse(to_canvas[t]);
-            auto rel = warp(out[t].view({1, 1, H, W}), inv, Hc, Wc, true);
-            relmax = torch::maximum(relmax, rel);
-            if (region.defined()) {
-                auto clear = warp(erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0), o.floor_gate_clear_px),
-                                  inv, Hc, Wc, true)
-                                 .gt(0.999)
-                                 .to(torch::kFloat32);
-                relmax_clear = torch::maximum(relmax_clear, rel * clear);
-                clear_seen = torch::maximum(clear_seen, clear);
-                if (spectral) clear_views.push_back(clear * reg_valid[t]);
-            }
-            if (spectral) rel_views.push_back(torch::where(reg_valid[t] > 0.5, rel, torch::full_like(rel, NAN)));
-        }
-        if (region.defined()) relmax = torch::where(clear_seen > 0.5, relmax_clear, relmax);
-        if (spectral) {
-            // Under a floor read from tile spectra the relative readings' largest is the stack's
-            // error, not a change of focus: the edges found the layer's sharpest views blurred past
-            // floor_max nearly everywhere, which a focus pull onto it would not leave. Synth
-            // walkout's static wall read relative maxima of 4-8 px where the subject had passed
-            // and on panels whose frames differ in pixel phase, and the floor's holes there
-            // (the radius fell from 7-8 px to the relative 2-4) cost the fit 2.5 dB against the
-            // truth's. A change of focus shows in many views; the gate reads the views' quantile.
-            auto R = torch::stack(rel_views);  // [T,1,1,Hc,Wc], NaN where the frame does not cover
-            if (region.defined()) {
-                auto C = torch::stack(clear_views) > 0.5;
-                R = torch::where(C | (clear_seen < 0.5).unsqueeze(0), R, torch::full_like(R, NAN));
-            }
-            relmax = torch::nan_to_num(torch::nanquantile(R, o.floor_gate_quantile_spectral, 0), 0.0);
-        }
-        // Under a large floor the stack's relative readings are noisy by more than gate_lo (synth
-        // walkout, a wall blurred 5.4-9.3 px that never changes focus: 25% of it saw a view read
-        // past 2.5 px), and a change of focus that matters there is a large one: the gate's
-        // thresholds are at least floor_gate_rel_lo / _hi of the floor.
-        auto glo = torch::maximum(torch::full_like(floor, o.floor_gate_lo), o.floor_gate_rel_lo * floor);
-        auto ghi = torch::maximum(torch::full_like(floor, o.floor_gate_hi), o.floor_gate_rel_hi * floor);
-        ghi = torch::maximum(ghi, glo + 1e-3);
-        auto gate = ((ghi - relmax) / (ghi - glo)).clamp(0, 1);
-        const auto ungated = floor;
-        floor = floor * gate;
-        const double share = floor.max().item<double>() > 0
-                                 ? gate.view({Hc, Wc}).masked_select(own_seen > 0.5).gt(0.5).to(torch::kFloat32).mean().item<double>()
-                                 : 0.0;
-        if (fixed_share) *fixed_share = share;
-        if (report) {
-            char buf[96];
-            std::snprintf(buf, sizeof buf, ", applied where focus never changed (%.0f%% of the layer)", 100.0 * share);
-            *report = line + (floor.max().item<double>() > 0 ? std::string(buf) : std::string());
-        }
-        for (int64_t t = 0; t < T; ++t) {
-            auto f0 = warp(floor, to_canvas[t], H, W)[0][0].clamp_min(0);
-            auto r = torch::sqrt(out[t] * out[t] + f0 * f0);
-            if (spectral) {
-                // Where the gate closes under a floor from tile spectra, the layer is still not
-                // sharper than the floor (its sharpest views were measured blurred past
-                // floor_max), and the relative reading there is the stack's error (synth walkout:
-                // where the subject, in focus at first, lent its edges to the wall's composite):
-                // the floor holds as a least radius, and the relative reading alone left holes of
-                // 0-3 px in a 6-8 px wall.
-                auto u = warp(ungated, to_canvas[t], H, W)[0][0].clamp_min(0);
-                r = torch::maximum(r, u);
-                // Where the gate is open (focus never changed) the radius is the floor itself:
-                // the relative readings there are the stack's error by the gate's own verdict,
-                // and added in quadrature they put frame-to-frame jitter on a static wall (synth
-                // walkout: 0.075 px on average over time, up to +1.3 px; with the floor alone
-                // 0.025 px, tPSNR 25.75 -> 26.08 dB and 19.70 -> 19.77 at 2 min, 19.59 -> 19.76
-                // at 5).
-                auto g = warp(gate, to_canvas[t], H, W)[0][0].clamp(0, 1);
-                r = g * u + (1 - g) * r;
-            }
-            out[t] = r.clamp(0.0, o.rmax);
-        }
-    }
+    for (int64_t t = 0; t < d.frames; ++t) out.push_back(relative_radius(d, c, region, t, o));
+    if (o.absolute) add_absolute_floor(d, c, region, out, o, report, fixed_share);
     return torch::stack(out).contiguous();
 }
 
@@ -598,18 +600,7 @@ void split_radius_by_layer(FitData& d, int margin) {
     d.radius_bg = torch::stack(rb).contiguous();
 }
 
-torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o_in, StackCocReport* report) {
-    StackCocOptions o = o_in;
-    // A/B hooks (fit_setup.cpp keys the cached estimate by them).
-    if (const char* e = std::getenv("REFOCUS_ABSOLUTE_BLUR")) o.absolute = std::atoi(e) != 0;
-    const std::pair<const char*, double*> hooks[] = {{"REFOCUS_FLOOR_MAX", &o.floor_max},
-                                                     {"REFOCUS_FLOOR_LO", &o.floor_lo},
-                                                     {"REFOCUS_FLOOR_HI", &o.floor_hi}};
-    for (const auto& [name, v] : hooks)
-        if (const char* e = std::getenv(name)) *v = std::atof(e);
-    if (const char* e = std::getenv("REFOCUS_FILL_CELLS")) o.floor_fill_cells = std::atoi(e);
-    if (const char* e = std::getenv("REFOCUS_GATE_CLEAR")) o.floor_gate_clear_px = std::atoi(e);
-    if (const char* e = std::getenv("REFOCUS_SPECTRAL_BLUR")) o.spectral = std::atoi(e) != 0;
+torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o, StackCocReport* report) {
     std::string line_bg, line_fg;
     torch::NoGradGuard no_grad;
     const bool layered = d.has_subject && d.mask.defined();

@@ -371,7 +371,7 @@ void FitWorker::loop() {
         if (m_atlas_request) {
             m_atlas_request = false;
             lk.unlock();
-            if (!m_engine || m_engine->options().preset == "perframe") continue;
+            if (!m_engine || !m_engine->has_atlas()) continue;
             Atlases a;
             {
                 std::lock_guard<std::mutex> ml(m_engine->model_mutex());
