@@ -2,7 +2,7 @@
 // The clip's ground truth gives the all-in-focus frame S_t and the true radius r_t; the input is
 // the aperture renderer's I_t. For each kernel, PSNR(L(S_t, s·r_t), I_t) measures the model
 // error that any fit with that kernel carries, away from the subject's silhouette (where a
-// single-layer blur is wrong whatever the kernel: DESIGN.md "Occlusion at depth edges").
+// single-layer blur is wrong whatever the kernel: docs/method.md, Layered reblur).
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
 

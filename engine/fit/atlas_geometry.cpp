@@ -79,11 +79,10 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
     }
     // The subject's own motion: the median flow over its mask (eroded off the wall it moves
     // against, where the flow is consistent), chained. The masks' outline is what focus changes
-    // most: a blurred subject's thresholded mask grows, shrinks and loses its head. Mean distance
-    // of the true subject centre in the foreground atlas from its mean, synth clips, centroid ->
-    // flow chain (before the fast preset's ECC refinement): hunt 5.0 -> 1.0 px, rack 8.9 -> 2.8,
-    // pan 5.7 -> 2.7 (ECC pairs on the same core: 1.8 / 3.0 / 2.8; the sharp wall that shows
-    // through a blurred subject's edge pulls them toward the wall's motion).
+    // most: a blurred subject's thresholded mask grows, shrinks and loses its head, so its
+    // centroid wanders where the flow chain does not. Not ECC between pairs: the sharp wall
+    // showing through a blurred subject's edge pulls it toward the wall's motion
+    // (docs/method.md, Preparation).
     auto core = (-F::max_pool2d(-(m > 0.5).to(torch::kFloat32).unsqueeze(1),
                                 F::MaxPool2dFuncOptions(9).stride(1).padding(4))).squeeze(1) > 0.5;
     std::vector<double> sx(T, 0.0), sy(T, 0.0);
@@ -112,8 +111,8 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
             zdy = (fy.to(torch::kFloat64) - (st - 1.0) * qy).median().item<double>();
         } else if (t > 0 && !d.legacy_track_gaps) {
             // No measurable subject (its mask is missing): the previous step again. The masks'
-            // centroids hold the last one seen there, and their step after the gap had added
-            // the gap's motion twice.
+            // centroids hold the last one seen there, and stepping by them after the gap adds
+            // the gap's motion twice (as the "flow" track, FitData::legacy_track_gaps, does).
             dx = sx[t] - sx[t - 1];
             dy = sy[t] - sy[t - 1];
             st = zs[t] / zs[t - 1];
@@ -131,8 +130,8 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
         zy[t + 1] = ccy + zdy - st * (ccy - zy[t]);
     }
     // The scale is used where the subject's size changes by more than 30% over the clip: noise
-    // in each pair's expansion chains (synth clips whose subject keeps its depth: rack's chain
-    // spans 0.89-1.02, hunt's and pan's 0.99-1.06; walkout's, which shrinks 2.5x, 0.42-1).
+    // in each pair's expansion chains, drifting by up to ~11% on a subject that keeps its depth
+    // (docs/method.md, Preparation).
     const double smax = *std::max_element(zs.begin(), zs.end()), smin = *std::min_element(zs.begin(), zs.end());
     if (scale_out && smax > 1.3 * smin) {
         for (int64_t t = 0; t < T; ++t) {

@@ -1,7 +1,7 @@
 #pragma once
 // Where the atlases lie, shared by the `fast` and `paper` presets: the background atlas covers
 // every frame mapped into the reference frame; the foreground atlas is stabilised on the
-// subject's (smoothed) mask centroid. Also the atlas sampling and the sharpest-view fusion that
+// subject's track (subject_track). Also the atlas sampling and the sharpest-view fusion that
 // both presets start from.
 #include <torch/types.h>
 

@@ -114,7 +114,7 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
                         {"perm_pos", m_perm_pos},
                         {"tensors", pt_name}};
     write_file_atomic(dir / "checkpoint.json", j.dump(1));
-    // Older tensor files are no longer referenced.
+    // checkpoint.json names only this step's tensor file: the others are removed.
     for (const auto& e : fs::directory_iterator(dir)) {
         const std::string n = e.path().filename().string();
         if (n.rfind("checkpoint_", 0) == 0 && n != pt_name && e.path().extension() == ".pt") {
@@ -162,8 +162,9 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     }
     std::lock_guard<std::mutex> lock(m_model_mutex);
     {
-        // An older subject track (FitData::legacy_subject_track) or atlas resolution rebuilds
-        // the model that way, so that its atlases and mappings mean what they meant.
+        // A checkpoint's own subject track ("centroid", "flow": FitData::legacy_subject_track)
+        // and atlas scale rebuild the model that way, so its atlases and mappings keep their
+        // meaning.
         const std::string kind = j.value("subject_track", std::string("centroid"));
         const bool legacy = m_data->has_subject && kind == "centroid";
         const bool legacy_gaps = m_data->has_subject && kind != "flow-v2";
@@ -195,7 +196,7 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
             throw Error(file_error(pt.string(), e.what()));
         }
         make_optimizer();  // load_state may have given the model new tensors (a stored geometry)
-        torch::Tensor resid;  // older checkpoints lack it: the running residual starts again
+        torch::Tensor resid;  // a checkpoint without it: the running residual starts again
         if (ar.try_read("robust_resid", resid) && resid.sizes().equals(m_resid.sizes())) m_resid.copy_(resid);
         if (m_optim) {
             torch::serialize::InputArchive opt;
@@ -213,7 +214,7 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     std::lock_guard<std::mutex> l2(m_snap_mutex);
     m_snap.step = m_step;
     m_snap.elapsed_s = m_elapsed;
-    // Older checkpoints lack the figures: they stay 0 until the next step.
+    // A checkpoint without the figures shows 0 for them up to the next step.
     m_snap.loss = j.value("loss", 0.0);
     m_snap.reblur_psnr = j.value("reblur_psnr", 0.0);
     if (j.contains("terms") && j["terms"].is_object()) m_snap.terms = j["terms"].get<LossTerms>();

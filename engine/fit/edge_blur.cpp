@@ -36,8 +36,8 @@ torch::Tensor edge_spread_table(const LensBlurParams& kernel, const EdgeBlurOpti
     const auto radii = grid(0.0, o.rmax, o.rstep), offsets = grid(-1.0, 1.0, 0.25);
     // The lens blur layer normalises each source pixel's kernel over its in-image taps, so a
     // source within r of the image border deposits more into the taps it keeps: the rows and
-    // columns read must be more than 2r from every border (at r + 3 px the far side of a 12 px
-    // step read 1.16 for 1).
+    // columns read must be more than 2r from every border (nearer, the step's far side reads
+    // too high).
     const int64_t S = 2 * o.reach + 1, margin = 2 * int64_t(std::ceil(o.rmax)) + 3;
     const int64_t Ww = S + 2 * margin, Hh = 2 * margin + 1;
     // A vertical step at x = s0 (pixel x covers [x − ½, x + ½]: its value is the share of it

@@ -10,12 +10,11 @@
 //
 // Why: the focal stack (stack_coc.h) measures blur relative to the sharpest view of each point,
 // so what a clip never shows in focus reads 0 (a focus puller's miss: the synth pan clip's
-// subject, blurred 7.15 px in every frame, and its wall, 0.5-3.8 px by the row under a fixed
-// focus). This measures what the sharpest view itself still holds. Measured on the synth pan
-// clip's frame 15 (prototype, same model): 851 edges accepted of 6407 candidates, median error
-// -0.09 px, 96% within 1 px; the subject's 20 edges read 6.75 px (truth 7.15). On walkout's
-// wall (6-9 px, dense glyphs) it reads ~1 px low: a blurred bump's flank looks like a narrower
-// step. Radii are in the kernel's units, like the stack's.
+// subject, blurred in every frame, and its wall under a fixed focus). This measures what the
+// sharpest view itself still holds. It is unbiased on isolated edges of a few px; on a wall
+// blurred past ~4 px with dense texture it reads low, as a blurred bump's flank looks like a
+// narrower step (spectral_blur.h; docs/method.md, Radius estimation). Radii are in the kernel's
+// units, like the stack's.
 #include <torch/types.h>
 
 #include "ops/lens_blur.h"

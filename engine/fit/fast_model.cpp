@@ -89,9 +89,8 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         m_fg.warp = torch::zeros({T, 2, gh, gw});
         const auto fg_weight = sharpness * d.mask.clamp_min(1e-3);
         // The subject's track may be off by a few px where the focus crosses it (its flow sees
-        // the wall through its blurred edge); the reblurred sharpest views pull it back. Synth
-        // rack, mean distance of the true subject centre from its mean in the atlas: refusing
-        // corrections over 4 px 2.7 px, over 10 px 1.0.
+        // the wall through its blurred edge); the reblurred sharpest views pull it back, which
+        // takes corrections up to 10 px (docs/method.md, Model). A centroid track keeps 4 px.
         refine_alignment(m_fg, fg_weight, d.mask, true, d.legacy_subject_track ? 4.0 : 10.0);
         if (std::any_of(sc.begin(), sc.end(), [](double v) { return v != 1.0; })) {
             char line[200];
@@ -115,31 +114,28 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         // How sharp the subject is in each frame is the subject's own radius (d.radius_fg where
         // the engine split it): where a blurred subject's mask lost its head, the visible
         // surface's radius there is the wall's, sharp when focus is on the wall, and such a
-        // frame's "no head" was trusted most.
+        // frame's "no head" would be trusted most.
         const auto subject_r = d.layer_radius(true).unsqueeze(1);
         auto fused_mask = fuse_frames(torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
                                       m_alpha_h, m_alpha_w, d.mask, (subject_r + 0.5).pow(-4.0));
         m_alpha_atlas = torch::logit(fused_mask.unsqueeze(0).clamp(0.01, 0.99));
         m_alpha_logit = torch::zeros({T, 1, (H + 3) / 4, (W + 3) / 4});
         // The masks are trusted as much as the subject is sharp there (1 at r = 0, 0.2 at 4 px,
-        // 0.07 at 7 px). Automatic masks of a blurred subject are blobs its blur widens, and a
-        // subject never in focus gets no more trust for it: until the thirteenth session the
-        // weight was relative to the clip's mean trust, which gave synth pan's always-blurred
-        // (7 px) subject full weight and held its matte to the blobs. Absolute, true radius,
-        // 600 steps: pan 24.15 -> 24.36 dB (7 px band along the silhouette 19.25 -> 19.75),
-        // rack 27.73 -> 27.84, hunt 24.93 -> 25.05, walkout 20.13 -> 20.13.
+        // 0.07 at 7 px), in absolute terms: automatic masks of a blurred subject are blobs its
+        // blur widens, and a subject never in focus earns no trust by being the clip's sharpest
+        // (docs/method.md, Model).
         m_boot_weight = 1.0 / (1.0 + (subject_r / 2.0).pow(2));
     }
     // A camera judged static (corners move < 2 px, prepare) maps every frame by the identity, as
-    // its feature homographies are mostly noise (synth tripod: 1.2 px of corner motion, all of it
-    // error). A hand-held "static" shot still shakes by a pixel (synth walkout: 1.5 px), which
-    // ECC against the reblurred fused atlas finds; on a locked-off camera it finds ~0.
+    // its feature homographies are mostly noise (a focus change alone moves features). A
+    // hand-held "static" shot still shakes by a pixel or so, which ECC against the reblurred
+    // fused atlas finds; on a locked-off camera it finds ~0.
     if (!d.static_camera || m_opts.static_align) {
         const auto before = m_bg.to_atlas.clone();
         refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false,
                          d.static_camera ? 2.0 : 4.0, d.static_camera);
-        // Corrections within ECC's noise on a locked-off camera (synth tripod: ≤ 0.12 px) are
-        // dropped: the identity keeps its frames from flickering (tPSNR 69 against 50 with them).
+        // Corrections under 0.3 px are ECC's noise on a locked-off camera and are dropped: the
+        // identity keeps its frames from flickering (docs/method.md, What is skipped when).
         if (d.static_camera &&
             (m_bg.to_atlas - before).narrow(1, 0, 2).narrow(2, 2, 1).abs().max().item<double>() < 0.3 * m_bg.scale)
             m_bg.to_atlas = before;
@@ -180,8 +176,8 @@ void FastModel::update_tv_weights() {
     }
     if (m_two_layers && (int(m_opts.tv_radius_layers) & 2)) {
         auto views = d.mask.clamp_min(1e-3);
-        // The subject's layer keeps the weight at any radius (no fade): synth pan's subject,
-        // blurred 7 px in every frame, true radius, 10 min: 26.02 -> 26.59 dB.
+        // The subject's layer keeps the weight at any radius (no fade): a subject blurred in
+        // every frame (synth pan's, 7 px) gains from it (docs/method.md, Model).
         m_fg.tv_weight = tv_weight_map(m_fg, d.layer_radius(true).unsqueeze(1), sharpness * views, views, 0.0);
     }
 }
@@ -319,10 +315,8 @@ std::string FastModel::make_deblur_path(Atlas& a, const torch::Tensor& radius, c
                                         const torch::Tensor& views, const char* name) {
     // Only for a layer that no frame saw in focus: the median, over the texels that the layer
     // covers in most of their views, of the radius each was seen at sharpest (fused as the
-    // texels are). Where focus reached a layer its
-    // sharp views carry the detail already, and the path would only fit the radius's errors
-    // (synth rack, estimated radius, 600 steps, a path on both layers by their median radius,
-    // 3.3 px: 25.90 -> 25.54 dB).
+    // texels are). Where focus reached a layer its sharp views carry the detail already, and
+    // the path would only fit the radius's errors (docs/method.md, Deblurring path).
     torch::NoGradGuard no_grad;
     const auto cover = fuse(a, torch::ones_like(views), views) > 0.5;
     if (!cover.any().item<bool>()) return {};
@@ -441,7 +435,7 @@ Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad)
     const int64_t B = frames.size(), H = m_data.height, W = m_data.width;
     Layers out;
     // The composed atlases are kept for priors() of the same step: composing costs an upsample of
-    // each coarse level forward and backward (~9 ms a step on synth pan).
+    // each coarse level forward and backward.
     const bool training = torch::GradMode::is_enabled();
     auto bg = compose(m_bg);
     m_composed_bg = training ? bg : torch::Tensor();
@@ -474,8 +468,8 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     if (m_two_layers)
         tv = tv + tv_factor(m_fg) * tv_l1(m_composed_fg.defined() ? m_composed_fg : compose(m_fg), m_fg.tv_weight);
     m_composed_bg = m_composed_fg = torch::Tensor();
-    // TV in frame px: a 2x atlas's neighbours differ by half as much (synth pan, 2x, 600 steps:
-    // w_tv 0.002 24.03 dB, 0.004 24.15, 0.0005 23.90).
+    // TV in frame px: a 2x atlas's neighbours differ by half as much, so the weight scales with
+    // the atlas (docs/method.md, Model).
     torch::Tensor total = m_opts.w_tv * m_bg.scale * tv;
     terms["tv"] = tv.item<double>();
     auto idx = torch::tensor(frames, torch::kLong);
@@ -490,7 +484,7 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     total = total + m_opts.w_warp * warp_reg;
     terms["warp"] = warp_reg.item<double>();
     // Temporal smoothness of the per-frame residuals (off by default: FastModelOptions::w_temporal
-    // has the measurements; the shared atlases already keep the frames consistent).
+    // says why; the shared atlases already keep the frames consistent).
     const int64_t T = m_data.frames;
     if (T > 1 && m_opts.w_temporal > 0) {
         std::vector<int64_t> nb;
@@ -546,7 +540,7 @@ void FastModel::set_atlas_fg(const torch::Tensor& rgb) {
 
 void FastModel::load_state(const std::map<std::string, torch::Tensor>& in) {
     auto s = in;
-    // An earlier build's checkpoint: its per-frame matte was all of alpha.
+    // A checkpoint without "alpha_atlas" held all of alpha in its per-frame matte.
     if (m_two_layers && !s.count("alpha_atlas")) s["alpha_atlas"] = torch::zeros_like(m_alpha_atlas);
     adopt_geometry(m_bg, "bg", s);
     if (m_two_layers) {
@@ -568,7 +562,7 @@ torch::Tensor FastModel::geometry(const Atlas& a) {
 
 void FastModel::adopt_geometry(Atlas& a, const std::string& name, std::map<std::string, torch::Tensor>& s) {
     auto g = s.find(name + "_geometry"), m = s.find(name + "_to_atlas");
-    if (g == s.end() || m == s.end()) {  // earlier builds: the geometry computed from the data
+    if (g == s.end() || m == s.end()) {  // a checkpoint without it: the computed geometry
         s[name + "_geometry"] = geometry(a);
         s[name + "_to_atlas"] = a.to_atlas;
         return;
@@ -593,7 +587,7 @@ void FastModel::adopt_geometry(Atlas& a, const std::string& name, std::map<std::
     }
     if (a.deblur.defined()) {
         auto it = s.find(name + "_deblur");
-        if (it == s.end())  // an earlier build's checkpoint: its texels hold the whole atlas
+        if (it == s.end())  // a checkpoint without the path: its texels hold the whole atlas
             s[name + "_deblur"] = torch::zeros_like(a.deblur);
         else if (!it->second.sizes().equals(a.deblur.sizes()))
             a.deblur = torch::zeros_like(it->second);

@@ -2,8 +2,8 @@
 // The `fast` preset: paper eq. 1 on explicit representations that train in minutes on a CPU.
 //   Background mapping M_b: the per-frame camera homography (from prepare) into a reference
 //     atlas, plus a coarse residual warp grid per frame (learned only when the camera moves).
-//   Foreground mapping M_f: per-frame translation that stabilises the subject (mask centroid)
-//     plus a coarse residual warp grid per frame.
+//   Foreground mapping M_f: per-frame translation (and scale where it changes) along the
+//     subject's track (atlas_geometry.h) plus a coarse residual warp grid per frame.
 //   Alpha: a matte shared by the frames in the foreground atlas (half resolution) plus a per-frame
 //     residual at quarter resolution (logits), bootstrapped from the masks where the subject is
 //     sharp.
@@ -34,12 +34,9 @@ struct FastModelOptions {
     double tv_radius_fade = 5.0;     // background atlas only
     double tv_radius_layers = 3;    // which atlases: 1 background, 2 foreground, 3 both
     double w_warp = 0.01;       // residual warp smoothness
-    // Neighbouring frames' residual warps and mattes agree. Off since the tenth session: the
-    // residual corrects each frame's own homography error (hand shake, a blurred frame's weak
-    // tracks), and pulling it toward the neighbours' kept those errors. Synth clips, 600 steps,
-    // PSNR / tPSNR at 0.5 → 0.1 → 0.03 → 0: hunt, true radius, 23.69/26.64 → 23.92/26.72 →
-    // 24.08/26.83 → 24.39/27.48; rack, estimated, 25.09/26.27 → (0.03) 25.59/26.56 → 25.71/26.81;
-    // rack, true radius, 25.52/26.71 → (0.1) 25.85/26.81 (flicker falls with it).
+    // Neighbouring frames' residual warps and mattes agree. Off: the residual corrects each
+    // frame's own homography error (hand shake, a blurred frame's weak tracks), and pulling it
+    // toward the neighbours' keeps those errors (docs/method.md, Model).
     double w_temporal = 0.0;
     double w_bootstrap = 0.5;   // alpha to mask, halves every `bootstrap_halflife` steps
     int bootstrap_halflife = 400;
@@ -119,18 +116,18 @@ private:
                                 const torch::Tensor& views, double fade) const;
     void set_atlas(Atlas& a, const torch::Tensor& rgb);
     static void rescale(Atlas& a, double s);
+    // The composed foreground atlas ([3,h,w] or [1,3,h,w]) prefiltered for each frame's
+    // minification (the subject seen smaller than in the atlas): [B,3,h,w].
+    torch::Tensor minified(const torch::Tensor& fg, const std::vector<int64_t>& frames) const;
     // Refines each frame's mapping by ECC image alignment (Evangelidis & Psarakis 2008) of the
     // reblurred fused atlas against the input frame, inside `region` ([T,1,H,W] > 0.5), then
     // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp
     // atlas shifted by a pixel scores worse than the blurred input.
-    // The composed foreground atlas ([3,h,w] or [1,3,h,w]) prefiltered for each frame's
-    // minification (the subject seen smaller than in the atlas): [B,3,h,w].
-    torch::Tensor minified(const torch::Tensor& fg, const std::vector<int64_t>& frames) const;
     void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
                           bool affine, double max_shift, bool static_camera = false);
     // Checkpoints hold each atlas's geometry (its box and per-frame mapping) beside its texels:
-    // a reopened project keeps what its fit trained, even when a later build would place the
-    // atlas differently. A state without it (earlier builds) keeps the geometry just computed.
+    // a reopened project keeps what its fit trained, even where this build would place the
+    // atlas differently. A state without geometry keeps the one just computed from the data.
     static torch::Tensor geometry(const Atlas& a);
     void adopt_geometry(Atlas& a, const std::string& name, std::map<std::string, torch::Tensor>& s);
 

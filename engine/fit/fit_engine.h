@@ -1,8 +1,8 @@
 #pragma once
 // The fit engine: one object driven by step(), shared by the CLI, the studio and the tests.
-// It minimises  Σ_t ‖L(C_t, r_t) − I_t‖ + priors  (DESIGN.md "fit"; paper eq. 3 and 4) over a
-// FitModel, with a layered reblur: L(α·F) + (1 − L(α))·L(B), so that a blurred foreground edge
-// reveals the background the atlas holds behind it (DESIGN.md "Occlusion at depth edges").
+// It minimises  Σ_t ‖L(C_t, r_t) − I_t‖ + priors  (docs/method.md, Objective; paper eq. 3 and 4)
+// over a FitModel, with a layered reblur: L(α·F) + (1 − L(α))·L(B), so that a blurred foreground
+// edge reveals the background the atlas holds behind it (docs/method.md, Layered reblur).
 #include <atomic>
 #include <chrono>
 #include <memory>
@@ -36,10 +36,8 @@ struct FitOptions {
     // far above their frame's typical residual — what the model cannot explain (an occlusion
     // edge fitted as one layer, a mask that misses the subject) — stop pulling on the atlases.
     // Weight 1 / (1 + (e / (c · median_t e))²) of a running residual e; 0 turns it off.
-    // Synth tripod clip, fast, 5-min schedule, sharp PSNR at 0.5/1/2/3 min: off 26.72/25.89/24.95/
-    // 24.57 · c 3: 27.30/26.69/26.09/25.92 · c 1.5: 27.41/27.16/26.64 · c 1: 27.63/27.27/26.86;
-    // rack 1 min: off 20.58 · c 1.5: 20.67. 1.5 keeps most pixels near full weight on footage
-    // the clips do not represent.
+    // A smaller c scores higher on the synth clips; 1.5 keeps most pixels near full weight on
+    // footage they do not represent (docs/method.md, Robust weights and fallback).
     double robust_c = 1.5;
     int64_t robust_warmup = 60;    // steps before the weights apply (the first fit is blurry)
     // Fallback (FitEngine::fallback_weight): from `fallback_k` x the frame's median residual
@@ -47,7 +45,7 @@ struct FitOptions {
     double fallback_k = 4.0;
     double fallback_min = 0.04;
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
-    // instead of the visible surface's map for both. Measured in README "How the fit works" 4.
+    // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;
     // The settings the user changed (settings.h): the fields above (applied by FitEngine) and
     // the preset model's options (applied by its factory, presets.h).
@@ -95,7 +93,7 @@ public:
     // belongs to another preset or clip shape.
     void load_checkpoint(const fs::path& dir);
     static bool has_checkpoint(const fs::path& dir);
-    // Saves when checkpoint_seconds of training time passed since the last save.
+    // Saves when checkpoint_seconds of training time have passed after the last save.
     bool maybe_checkpoint(const fs::path& dir);
 
     // Inference (no gradients). Frame t's layers, its reblur, and the atlases.
@@ -104,7 +102,8 @@ public:
     // Fallback to the shot: where frame t's reblur residual stayed far above what the model
     // explains elsewhere (a subject the masks missed, ghosted over the wall), the sharp plate
     // shows the input frame instead of a wrong reconstruction. [1,1,H,W] in [0,1] (1: input), or
-    // undefined when nothing falls back (perframe, a frame not trained yet, an old checkpoint).
+    // undefined when nothing falls back (perframe, a frame not trained yet, a checkpoint
+    // without the running residual).
     torch::Tensor fallback_weight(int t) const;
     // L.sharp (frame t, batch of one) blended with the input by fallback_weight(t). When atlas
     // edits were drawn into L, `model_sharp` is L.sharp before them: the fallback blends that,
@@ -122,7 +121,8 @@ private:
                                 const std::vector<int64_t>& frames);
     std::vector<int64_t> next_batch();
     // The model of the preset on the data (each layer's radius split first), its padded radius
-    // maps and its optimiser; again when a checkpoint asks for an earlier build's geometry.
+    // maps and its optimiser; again when a checkpoint asks for another subject track or atlas
+    // scale.
     void build_model();
     void make_optimizer();
     double budget_fraction() const;

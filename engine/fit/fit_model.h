@@ -40,10 +40,10 @@ struct FitData {
     bool radius_given = false;
     // Atlas texels per frame pixel (choose_atlas_scale, fit_setup.h; a checkpoint keeps its own).
     double atlas_scale = 1;
-    // Subject tracks of older checkpoints (checkpoint.cpp sets them from "subject_track"):
-    // "centroid" placed the subject's atlas on its masks' centroids; "flow" chained the flow
-    // over the masks as stored and stepped over a frame without a mask by the centroids. New
-    // fits ("flow-v2") clean the masks along the track first.
+    // The subject track a checkpoint was fitted with (checkpoint.cpp sets them from its
+    // "subject_track"): "centroid" places the subject's atlas on its masks' centroids; "flow"
+    // chains the flow over the masks as stored and steps over a frame without a mask by the
+    // centroids; "flow-v2" (both false) cleans the masks along the track first.
     bool legacy_subject_track = false;
     bool legacy_track_gaps = false;
     torch::Tensor mask_as_stored;  // [T,1,H,W] the automatic masks before clean_subject_masks

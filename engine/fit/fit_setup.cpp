@@ -46,7 +46,7 @@ std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps
     };
 }
 
-// The focal-stack radius (~20 s at 320x180x30) is cached in prep/ beside what it was computed
+// The focal-stack radius (slow to compute) is cached in prep/ beside what it was computed
 // from: prep/stack_coc_%04d.exr and prep/stack_coc.json (written last) holding a key of its
 // inputs (prepare.json's content, the layer decision). Opening a fitted project, exporting and
 // the studio then reuse it; a new prepare or another decision recomputes it.
@@ -100,22 +100,15 @@ void save_stack_radius(const Project& project, const torch::Tensor& radius, cons
 
 std::string choose_atlas_scale(FitData& d, bool radius_given, double forced) {
     // A 1x atlas resampled to a frame's sub-pixel position loses the in-focus detail the frame
-    // held: fine texture sits above what a 1x grid carries when shifted (synth pan, the wall's
-    // in-focus top rows: the input 35.3 dB, the fitted 1x atlas 29.9; the ground truth itself
-    // shifted to a neighbour by the true flow, bicubic: 29.6). Frames that a moving camera saw
-    // at many sub-pixel phases resolve it on a 2x atlas, as multi-frame super-resolution does.
-    // A static camera sees each texel at one phase (nothing to resolve; the 2x grid only trains
-    // slower: synth tripod, 300 steps, 31.90 -> 30.79 dB), and what no frame saw in focus has no
-    // detail to resolve. Synth, true radius, 600 steps, 1x -> 2x (TV in frame px): rack
-    // 26.68 -> 27.73 dB, hunt 24.60 -> 24.93, pan 23.61 -> 24.15; the wall's in-focus top rows
-    // of pan 29.9 -> 35.0 (input 35.3). Super-resolution needs the blur right, though: with the
-    // radius estimated from the clip (relative to each point's sharpest view) the finer grid
-    // fits the estimate's errors, differently in each frame (rack, 600 steps: 25.71 -> 25.05 dB,
-    // tPSNR 26.8 -> 25.9, the reblur 34.4 -> 36.0 dB; hunt and rack at 5 min alike). So 2x is
-    // for radius maps given with --coc (a depth-derived or measured defocus), and for an estimate
-    // that holds over the clip: where focus never changed, the radius is the absolute floor, one
-    // smooth surface that every frame shares, with no per-frame errors for the grid to fit (synth
-    // pan, focus fixed on the wall, 99% of it: 600 steps, 1x 22.81 -> 2x 23.06 dB).
+    // held: fine texture sits above what a 1x grid carries when shifted. Frames that a moving
+    // camera saw at many sub-pixel phases resolve it on a 2x atlas, as multi-frame
+    // super-resolution does. A static camera sees each texel at one phase (nothing to resolve;
+    // the 2x grid only trains slower), and what no frame saw in focus has no detail to resolve.
+    // Super-resolution needs the blur right, though: a radius estimated relative to each point's
+    // sharpest view errs differently in each frame, and the finer grid fits those errors. So 2x
+    // is for radius maps given with --coc (a depth-derived or measured defocus), and for an
+    // estimate that holds over the clip: where focus never changed, the radius is the absolute
+    // floor, one smooth surface that every frame shares (docs/method.md, Atlas scale).
     torch::NoGradGuard g;
     const double in_focus = (d.radius < 1.5).to(torch::kFloat32).mean().item<double>();
     const double texels = 4.0 * d.height * d.width;
@@ -143,11 +136,9 @@ std::string choose_atlas_scale(FitData& d, bool radius_given, double forced) {
 }
 
 LensBlurParams fit_kernel_params(const std::string& kernel) {
-    // Which kernel the fit reblurs with. The synth clips' aperture renderer (a uniform disk of
-    // samples, as a lens's defocus is) reblurs its sharp frames, with the true radius and away
-    // from occlusion edges, to 52.3 dB (hunt) / 46.3 (rack) through the pillbox and 46.3 / 42.1
-    // through the paper's disk (β = 2, radius converted: kernel_radius_for_coc). Fits with the
-    // true radius, 600 steps: hunt 23.19 -> 23.69 dB, rack 24.29 -> 25.52.
+    // Which kernel the fit reblurs with. A lens's defocus (and the synth clips' aperture
+    // renderer) is a uniform disk, which the pillbox matches more closely than the paper's disk
+    // (β = 2), and fits with it score higher (docs/method.md, Lens blur kernel).
     LensBlurParams p;
     if (kernel == "pillbox") {
         p.kernel = BlurKernel::Pillbox;
@@ -176,8 +167,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     }
     if (!reuse) {
         PrepareOptions po;
-        // Defocus changes move features by up to ~1–2 px with no camera motion at all (measured
-        // on the synth tripod clip: 1.6 px), so "static" allows that much.
+        // Defocus changes move features by up to ~1–2 px with no camera motion at all, so
+        // "static" allows that much (docs/method.md, Preparation).
         po.motion.static_max_px = 2.0;
         po.mask_path = opts.mask_path;
         po.estimate_coc = opts.coc_path.empty();
@@ -201,11 +192,9 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     if (!opts.coc_path.empty()) {
         radius = load_coc_maps(opts.coc_path, project.frames, project.width, project.height);
         // The maps hold circles of confusion (a thin lens's uniform disk, as the synth clips'
-        // passes or a depth-derived map); the lens blur layer's disk (paper eq. 2) is softer
-        // than that disk, so each radius becomes the kernel radius that spreads light as far.
-        // Synth clips, 1-min fast with the true radius, as given -> converted: pan 19.27 -> 22.40
-        // dB, walkout 17.60 -> 19.08, rack 22.28 -> 22.84, hunt 21.85 -> 22.30, tripod 27.02
-        // -> 26.22.
+        // passes or a depth-derived map); the fit's kernel spreads light differently (the
+        // paper's disk is softer), so each radius becomes the kernel radius with the same second
+        // moment on the pixel grid (docs/method.md, Lens blur kernel).
         const auto table = coc_to_kernel_table(radius, d->blur);  // the fit's kernel
         for (Image& r : radius)
             for (float& v : r.pixels) v = float(table(v));
@@ -233,10 +222,9 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     d->has_subject = prep.decisions.has_subject && !prep.masks.empty();
     if (d->has_subject && opts.mask_path.empty()) {
         // Automatic masks threshold the flow residual, and a focus change alone makes edges
-        // "move" (measured on the synth tripod clip: 9% of the frame flagged, a different patch
-        // every frame). A subject moves coherently: its mask centre travels a short way from
-        // frame to frame. If the centre jumps (median step over 4% of the diagonal), the masks
-        // are defocus noise: one layer.
+        // "move" (a different patch every frame). A subject moves coherently: its mask centre
+        // travels a short way from frame to frame. If the centre jumps (median step over 4% of
+        // the diagonal), the masks are defocus noise: one layer.
         std::vector<std::pair<double, double>> c;
         for (const auto& m : prep.masks) {
             double sx = 0, sy = 0, sw = 0;

@@ -10,9 +10,9 @@ torch::Tensor srgb_encode(const torch::Tensor& linear);
 
 // Mean SSIM and contrast-structure terms of [N,C,H,W] images in [0,1] (11x11 Gaussian, σ 1.5,
 // valid region), as in engine/metrics but differentiable.
-// The fast path filters with a fused loop (forward and adjoint) and stacks the moments: on a
-// 2x3x180x320 batch, forward and backward take ~4x less time than the reference, which builds the
-// filter from 22 shifted tensor multiply-adds per moment. Tests hold the two to each other.
+// The fast path filters with a fused loop (forward and adjoint) and stacks the moments, several
+// times faster than the reference (docs/benchmarks.md, Speed), which builds the filter from 22
+// shifted tensor multiply-adds per moment. Tests hold the two to each other.
 torch::Tensor ms_ssim_loss(const torch::Tensor& a, const torch::Tensor& b);  // 1 − MS-SSIM
 torch::Tensor ms_ssim_loss_reference(const torch::Tensor& a, const torch::Tensor& b);
 
@@ -33,10 +33,10 @@ torch::Tensor tv_l1(const torch::Tensor& x, const torch::Tensor& weight = {});
 // at several radii has those frequencies from the others (a focus change moves the zeros). So:
 // clamp(gain · r_sharp, 1, cap) where the radii vary (standard deviation) by 0, blending to 1 at
 // `spread` px and beyond. With `fade` > 0 it also blends to 1 as r_sharp goes from fade − 1 to
-// fade px. Measured on the synth clips (true radius): more TV lifted pan, whose wall is blurred
-// 0.5–3.8 px and whose subject 7 px, but cost walkout, whose wall is blurred 5–9 px (glyphs and
-// checkers; weighed 4×, 20.83 → 20.37 dB at 1500 steps), so the fast model fades the background
-// atlas's weight from 4 to 5 px and keeps the subject's at any radius.
+// fade px. More TV helps a layer blurred a few px in every view (synth pan's wall and subject)
+// but flattens a glyph wall blurred 5–9 px (synth walkout's), so the fast model fades the
+// background atlas's weight from 4 to 5 px and keeps the subject's at any radius
+// (docs/method.md, Model).
 torch::Tensor tv_radius_factor(const torch::Tensor& r_sharp, const torch::Tensor& r_mean,
                                const torch::Tensor& r_sq_mean, double gain, double cap, double spread,
                                double fade = 0);

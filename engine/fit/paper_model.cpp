@@ -70,8 +70,8 @@ AtlasDecoderImpl::AtlasDecoderImpl(int in_channels, const std::vector<int>& chan
     int in = in_channels;
     for (int c : channels) {  // paper §3.2: upsampling by pixel shuffle (Shi et al. 2016)
         net->push_back(torch::nn::Conv2d(torch::nn::Conv2dOptions(in, 4 * c, 3).padding(1)));
-        // Leaky ReLU (0.2) as in Deep Image Prior: plain ReLU units died when the decoder was
-        // pre-trained at a useful learning rate and the atlas collapsed to black.
+        // Leaky ReLU (0.2) as in Deep Image Prior: plain ReLU units die when the decoder is
+        // pre-trained at a useful learning rate, and the atlas collapses to black.
         net->push_back(torch::nn::LeakyReLU(torch::nn::LeakyReLUOptions().negative_slope(0.2)));
         net->push_back(torch::nn::PixelShuffle(2));
         in = c;
@@ -107,11 +107,10 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
     m_bg.to_atlas = torch::matmul(translation(-ox, -oy), to_ref).to(torch::kFloat32);
     m_bg.map = CoordMlp(opts.map_freqs, opts.map_layers, opts.map_width, 2);
     init_residual(m_bg);
-    // A static camera gets the exact identity mapping (as the fast preset: README "Skip what
-    // the scene does not need"): a learned residual there only drifts. Measured on tripod with
-    // it learned: sharp PSNR 26.07 → 25.33 dB and tPSNR 56.9 → 46.6 dB from 1 to 5 min while the
-    // reblur PSNR rose (33.9 → 34.3): the per-frame mapping fitted the reblur, not the scene.
-    // With the identity: 25.97 dB at 1 min, 25.81 at 3 min, tPSNR 100 dB (static scene, static output).
+    // A static camera gets the exact identity mapping (as the fast preset: docs/method.md, What
+    // is skipped when): a learned residual there only drifts, fitting the reblur rather than the
+    // scene, so the sharp output falls and flickers as the reblur improves (docs/method.md,
+    // Presets).
     m_bg.learn_residual = !d.static_camera;
 
     torch::NoGradGuard no_grad;
@@ -122,15 +121,15 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
     if (m_two_layers) {
         bg_weight = sharpness * (1.0 - d.mask).clamp_min(1e-3);
         fg_weight = sharpness * d.mask.clamp_min(1e-3);
-        // Foreground: translate each frame's (smoothed) mask centroid onto one point — the
+        // Foreground: translate each frame's point of the subject's track onto one point — the
         // fast preset's stabilised mapping, here the pre-training target of M_f.
         std::vector<double> sx, sy;
         subject_track(d, sx, sy);
         const AtlasBox fbox = subject_box(d.mask, sx, sy, 12.0);
         const double fox = fbox.origin_x, foy = fbox.origin_y;
         // No larger than the background atlas (the frame's bounding box): masks that flag stray
-        // edges far from the subject made the stabilised box up to 3× the frame, an atlas the
-        // decoder then spent most of its time on.
+        // edges far from the subject can make the stabilised box up to 3× the frame, an atlas
+        // the decoder would spend most of its time on.
         m_fg.width = round_up8(std::min<int64_t>(fbox.width, m_bg.width));
         m_fg.height = round_up8(std::min<int64_t>(fbox.height, m_bg.height));
         std::vector<torch::Tensor> mats;
@@ -142,8 +141,8 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
     }
     m_decoder = AtlasDecoder(opts.noise_channels, opts.decoder_channels);
     // Z_b, Z_f: fixed, seeded noise (Deep Image Prior, Ulyanov et al. 2018). Unit Gaussian, not
-    // DIP's uniform ×0.1: without DIP's batch norm a faint input left the biases in charge and
-    // the pre-training collapsed the atlas to a saturated constant.
+    // DIP's uniform ×0.1: without DIP's batch norm a faint input leaves the biases in charge and
+    // the pre-training collapses the atlas to a saturated constant.
     m_bg.noise = torch::randn({1, opts.noise_channels, m_bg.height / 8, m_bg.width / 8});
     if (m_two_layers)
         m_fg.noise = torch::randn({1, opts.noise_channels, m_fg.height / 8, m_fg.width / 8});
@@ -418,7 +417,7 @@ torch::Tensor PaperModel::priors(const Layers& layers, const std::vector<int64_t
         auto sparse = ((1.0 - layers.alpha) * layers.fg).pow(2).sum(1).mean();
         // Ramped in (0 before sparsity_start, full weight sparsity_ramp steps later): at full
         // weight from step 0 it outweighs the reconstruction ~300:1 on the soft mask edges and,
-        // through the decoder shared with the background, pulled both atlases to black.
+        // through the decoder shared with the background, pulls both atlases to black.
         const double ramp = m_opts.sparsity_ramp > 0
                                 ? std::clamp(double(step - m_opts.sparsity_start) / m_opts.sparsity_ramp, 0.0, 1.0)
                                 : (step >= m_opts.sparsity_start ? 1.0 : 0.0);

@@ -5,24 +5,23 @@
 //     (Layered Neural Atlases, Kasten et al. 2021). UV is in the grid_sample convention
 //     (align_corners = false) of an atlas laid out like the fast preset's: the background atlas
 //     is the bounding box of every frame mapped through the camera homography, the foreground
-//     atlas a subject-centroid-stabilised box (no larger than the background's).
+//     atlas a box stabilised on the subject's track (no larger than the background's).
 //   Alpha M_α: MLP with positional encoding → sigmoid.
 //   Atlases: a deep-image-prior decoder (§3.2) shared by both layers, A = D(Z) from fixed,
 //     seeded noise maps Z of C × H/8 × W/8: 3 × (conv3×3 + leaky ReLU + pixel shuffle ×2), then
 //     conv3×3 → 3 channels + sigmoid.
 //   Loss weights of §4.1: λ1..λ4 = 0.3, 1.5, 100, 0.5 (see priors()).
-// Deviations, each for the CPU budget (measured on the 320×180×30 synth tripod clip, 2 cores):
+// Deviations, each for the CPU budget (docs/method.md, Presets):
 //   - M_b, M_f output a bounded residual (tanh × residual_px) added to the geometric mapping
 //     (homography / stabilising translation) instead of UV directly, the residual's last layer
-//     starting at zero. LNA pre-trains a direct MLP to that mapping; 300 steps of that (20 s)
-//     left a 2.1 px RMS mapping error (4.5 px²), which by itself undid the deblurring
-//     (16.1 dB after the set-up vs 24.3 dB with the residual, input 19.1 dB).
+//     starting at zero. LNA pre-trains a direct MLP to that mapping; the pixels of mapping
+//     error a CPU's few hundred pre-training steps leave undo the deblurring by themselves.
 //   - MLP widths 128 (mappings 4 layers, alpha 6 layers) instead of 256/8, evaluated on a
 //     lattice every mlp_stride = 4 px and bilinearly interpolated (the residual and α are
 //     smooth; the geometric part is evaluated at every pixel).
 //   - Sparsity (λ3) is ramped in over steps sparsity_start … + sparsity_ramp: at full weight
-//     from the start it outweighed the reconstruction ~300:1 on soft mask edges and, through
-//     the decoder shared with the background, pulled both atlases to black.
+//     from the start it outweighs the reconstruction ~300:1 on soft mask edges and, through
+//     the decoder shared with the background, pulls both atlases to black.
 // Initialisation: M_α is pre-trained to the masks; the decoder is pre-trained (L1) to the
 // sharpness-weighted fusion of the input frames (atlas_geometry.h fuse_frames, the fast
 // preset's starting atlas), so that the reblur loss starts from a meaningful state instead of
@@ -56,9 +55,8 @@ struct PaperModelOptions {
     int prior_points = 2048;        // random points per step for rigidity and flow
     // Pre-training in the constructor.
     int pretrain_map_steps = 300, pretrain_atlas_steps = 300;
-    // 5e-3: decoded-vs-fused L1 0.0125 after 300 steps (2e-3: 0.018, 1e-2: 0.016); the fit then
-    // starts at 25.6 dB instead of 24.3 (tripod). lr_decoder: 3e-3 dropped to 21 dB at once,
-    // 3e-4 and 1e-3 were even after 0.5 min (26.3 dB).
+    // 5e-3 brings the decoded atlas closest to the fusion in 300 steps, so the fit starts from
+    // a sharper atlas; an lr_decoder above 1e-3 then loses that start (docs/method.md, Presets).
     double lr_pretrain_atlas = 5e-3;
 };
 

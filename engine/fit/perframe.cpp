@@ -189,7 +189,7 @@ torch::Tensor deconvolve_tv(const torch::Tensor& blurred, const torch::Tensor& r
         return out;
     };
 
-    // A frame that is sharp everywhere needs no deconvolution (DESIGN.md, prepare: skip it).
+    // A frame that is sharp everywhere needs no deconvolution: it is returned as is.
     if (radius.max().item<double>() < options.sharp_radius || options.iterations == 0) {
         st.skipped_sharp = radius.max().item<double>() < options.sharp_radius;
         return finish(blurred.clone());

@@ -12,8 +12,7 @@
 //     z ← vectorial shrinkage of ∇u + w by λ/ρ (the proximal map of eq. 1.7's integrand);
 //     w ← w + ∇u − z.
 // Every accuracy claim of the product is measured against this baseline, so its defaults
-// (λ, ρ, iterations) were tuned for PSNR on textured content at radius 2–8 px (see
-// tests/test_perframe.cpp and the numbers beside kDefaultTvLambda).
+// (λ, ρ, iterations) are tuned for PSNR on textured content at radius 2–8 px.
 #include <torch/types.h>
 
 #include <vector>
@@ -23,13 +22,10 @@
 
 namespace refocus {
 
-// λ of eq. 1.7 in linear-light units (image values in [0,1], one unit of gradient per px),
-// chosen by a sweep on textured frames (glyphs, checkers, stripes, star, coloured noise; 96×64)
-// blurred with the disk kernel at radius 2, 4, 6, 8 px plus Gaussian noise, scored by the mean
-// sRGB 8-bit PSNR gain (tests/test_perframe.cpp, "lambda sweep"). At σ = 0.005 (≈ 8-bit
-// quantisation plus sensor noise in the mid-tones): λ = 2.5e-5 → +3.4 dB, 5e-5 → +4.9,
-// 1e-4 → +5.4 (best), 2e-4 → +4.9. At σ = 0.002 the best is 2.5e-5…5e-5 (+7.7 dB, vs +6.7 at
-// 1e-4): the optimum scales roughly with σ², so pass a smaller λ for clean renders.
+// λ of eq. 1.7 in linear-light units (image values in [0,1], one unit of gradient per px): the
+// best mean sRGB PSNR gain on textured frames blurred 2–8 px by the disk with Gaussian noise of
+// σ = 0.005 (≈ 8-bit quantisation plus sensor noise in the mid-tones; docs/method.md, Presets).
+// The optimum scales roughly with σ², so pass a smaller λ for clean renders.
 constexpr double kDefaultTvLambda = 1e-4;
 // ADMM penalty as a multiple of λ when TvDeconvOptions::rho ≤ 0 (affects speed, not the answer).
 constexpr double kDefaultRhoPerLambda = 10.0;
@@ -48,8 +44,8 @@ struct TvDeconvOptions {
 };
 
 // The perframe preset's deconvolution. λ is for footage, not for clean renders: the blur model
-// never matches a lens exactly, and TV absorbs that mismatch (docs/method.md, Presets); 50
-// iterations sit ~0.3 dB short of convergence at a fifth of the time.
+// never matches a lens exactly, and TV absorbs that mismatch; 50 iterations come close to
+// convergence at a fifth of the time (docs/method.md, Presets).
 struct PerframeOptions {
     double lambda = 0.01;
     int iterations = 50;

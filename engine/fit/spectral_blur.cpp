@@ -61,8 +61,8 @@ Rings make_rings(int64_t h, int64_t w) {
 
 // Ring medians of periodograms x [N, h*w] → [N, G], as means (÷ ln 2: the median of an
 // exponential variable of mean v is v·ln 2). Stripes and checkers put lines on a ring, a few of
-// its frequencies far above the rest, and a ring's mean followed them: striped panels on synth
-// walkout's wall (blurred 7.5-9 px) read 1.7-2.1 px.
+// its frequencies far above the rest, and a ring's mean follows them: a striped panel blurred
+// 7.5-9 px reads as a small blur (docs/method.md, Radius estimation).
 torch::Tensor pool_median(const torch::Tensor& x, const Rings& r) {
     std::vector<torch::Tensor> cols;
     for (int64_t g = 0; g < r.size; ++g) {

@@ -63,19 +63,6 @@ torch::Tensor fill_from(const torch::Tensor& v, const torch::Tensor& w) {
     return w * v + (1 - w) * up;
 }
 
-// The composite's absolute blur r0 [Hc,Wc] (edge_blur.h). Each frame's isolated edges are
-// measured where the frame holds the layer; an edge of absolute radius e at a pixel whose
-// relative radius (the stack's) is rel says r0 = sqrt(e² − rel²) there. Only edges seen within
-// floor_rel_max of their sharpest view count: for a point seen far out of focus that difference
-// of squares is all noise (e = 6 ± 1 against rel = 5 reads r0 = 0-4.8). The readings of all
-// frames, placed on the canvas, are averaged over `spread` px (normalised convolution) where
-// at least min_local_edges fall, the rest filled from the nearest (push-pull). The frames, not
-// the composite: the composite is resampled and blended, which blurs it by 0.5-1 px (synth pan's
-// in-focus rows: frames 0-0.4 px, composite 0.75-1.25), and the frames hold 30x the edges.
-// Below floor_lo r0 reads 0 and ramps to r0 at floor_hi (an edge in focus reads 0-0.75 px).
-// Not the luma-guided filter the relative radius is spread with: its locally linear model in
-// luma turned sparse readings into a radius that followed the texture (synth pan, 600 steps:
-// the in-focus rows' noise panel came out speckled, a star rang).
 // Readings of the composite's absolute blur r0 binned into cells of `cell` px on the canvas.
 struct FloorBins {
     int cell = 1;
@@ -104,9 +91,8 @@ void add_readings(FloorBins& b, const torch::Tensor& x, const torch::Tensor& y, 
     auto r_rel = rel_t.index({yi, xi});
     // The floor dominates the reading (r0 >= 0.87 e), or the frame is near its sharpest view.
     // Tiles count only near their sharpest view: under a blur read from tile spectra the stack's
-    // relative readings are mostly its own error (synth walkout's static wall: 0-4 px), and
-    // e² − rel² took up to 13% off a reading. Synth walkout, estimated radius: wall MAE 0.17 ->
-    // 0.13 px; 19.36 -> 19.70 dB at 2 min, 19.23 -> 19.56 at 10.
+    // relative readings are mostly its own error, and e² − rel² would take that error off a
+    // reading (docs/method.md, Radius estimation).
     auto keep = near_sharpest_only ? r_rel < o.floor_rel_max : (r_rel < o.floor_rel_max) | (r_rel <= 0.5 * e);
     auto r0 = (e.pow(2) - r_rel.pow(2)).clamp_min(0).sqrt().masked_select(keep).contiguous();
     auto pts = torch::stack({x.masked_select(keep), y.masked_select(keep), torch::ones_like(r0)}).to(torch::kFloat64);
@@ -153,11 +139,11 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
     }
     // The floor is a smooth surface over the layer: a quadratic in canvas coordinates fitted to
     // the cells' medians (weighted by their counts), robustly (iteratively reweighted, Tukey's
-    // biweight at 4.685 MADs). Each texture reads its own bias (a panel of stripes 0.5-1 px high,
-    // of glyphs low), and a cell-by-cell map turned those into a patchwork of radii that the fit
-    // deconvolved into rings and garbled stripes (synth pan, 600 steps: the in-focus rows
-    // 33.8 -> 22.9 dB where a cell's fill reached them). The depth of a layer that is never in
-    // focus changes slowly over it; what changes fast is a focus change, which the stack measures.
+    // biweight at 4.685 MADs). Each texture reads its own bias (a panel of stripes high, of
+    // glyphs low), and a cell-by-cell map turns those into a patchwork of radii that the fit
+    // deconvolves into rings and garbled stripes (docs/method.md, Radius estimation). The depth
+    // of a layer that is never in focus changes slowly over it; what changes fast is a focus
+    // change, which the stack measures.
     std::vector<double> cu, cv, cr, cw;
     for (int64_t gy = 0; gy < Gh; ++gy)
         for (int64_t gx = 0; gx < Gw; ++gx) {
@@ -180,7 +166,7 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
     };
     auto A = basis(U, V);
     // Quadratic, plane or constant by the number of measured cells: a quadratic through a few
-    // cells of a tiny clip (synth pan at 128x72, 8 frames) bent the wall's floor the wrong way.
+    // cells (a tiny clip) can bend the floor the wrong way.
     // A plane only (`plane`) for the tile spectra's floor: a planar surface's inverse depth is
     // affine in image coordinates, and so its blur where it is never in focus (seed 001 eq. 1.12).
     const int64_t P = n >= 40 && !plane ? 6 : n >= 10 ? 3 : 1;
@@ -206,17 +192,16 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
     auto g = torch::meshgrid({ys, xs}, "ij");
     auto r0 = torch::matmul(basis(g[1].flatten(), g[0].flatten()).narrow(1, 0, P), coef)
                   .view({Hc, Wc}).to(torch::kFloat32)
-                  // Within the cells' own range: a surface through few cells extrapolates (synth
-                  // rack's subject: 40 edges reading 0.25 px gave a floor of 5.6 px). A plane
+                  // Within the cells' own range: a surface through few cells extrapolates (a
+                  // few edges reading little blur can make a floor of several px). A plane
                   // through tiles' centres (32-64 px from the border) may reach their half-size
-                  // further: synth walkout's top rows read 8.5 px for 9.2 when held to the cells'.
+                  // further, or the layer's outer rows read short of their blur.
                   .clamp(std::max(0.0, R.min().item<double>() - (plane ? slope_reach : 0.0)),
                          std::min(rmax, R.max().item<double>() + (plane ? slope_reach : 0.0)));
     // The surface holds where it was measured: within floor_fill_cells cells of a measured cell,
-    // fading to 0 (no evidence of blur) beyond. Synth pan, 600 steps: 2 cells 22.15 dB, 4 and 8
-    // cells 22.81 (the wall under the subject's path, where few edges pass, kept no floor;
-    // the wall's 99th percentile of overshoot stays 1.99 px). On a tiny clip (synth pan, 128x72,
-    // 8 frames) 4 cells overshoot by 1.62 px at the 99th percentile, 2 cells by 1.25.
+    // fading to 0 (no evidence of blur) beyond. Fewer cells leave the wall under the subject's
+    // path, where few edges pass, without a floor; more overshoot on a tiny clip
+    // (docs/method.md, Radius estimation).
     auto near = has;
     // A reading stands for reach_px around its place (a tile's half-size), and holds that much further.
     for (int k = 0; k < o.floor_fill_cells + (reach_px + cell - 1) / cell; ++k)
@@ -232,8 +217,8 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
     auto inside = r0.masked_select(own > 0.5);
     *median = inside.numel() ? inside.median().item<double>() : 0.0;
     // The floor covers the layer's own canvas and its rim: `own` stops contrast_window + 1 px
-    // short of the canvas border, and those rows and columns kept no floor (synth pan: the frame's
-    // bottom rows read 0.3 px for 3.7).
+    // short of the canvas border, and those rows and columns would otherwise keep no floor (a
+    // frame's outer rows reading a fraction of their blur).
     const int rim = o.contrast_window + 1 + o.window;
     return r0 * F::max_pool2d((own > 0.5).to(torch::kFloat32).view({1, 1, Hc, Wc}),
                               F::MaxPool2dFuncOptions(2 * rim + 1).stride(1).padding(rim))
@@ -247,11 +232,10 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
 // of squares is all noise (e = 6 ± 1 against rel = 5 reads r0 = 0-4.8). The readings of all
 // frames, placed on the canvas, are binned in cells and made a smooth surface (floor_surface).
 // The frames, not the composite: the composite is resampled and blended, which blurs it by
-// 0.5-1 px (synth pan's in-focus rows: frames 0-0.4 px, composite 0.75-1.25), and the frames
-// hold 30x the edges. Below floor_lo r0 reads 0 and ramps to r0 at floor_hi (an edge in focus
-// reads 0-0.75 px). Not the luma-guided filter the relative radius is spread with: its locally
-// linear model in luma turned sparse readings into a radius that followed the texture (synth
-// pan, 600 steps: the in-focus rows' noise panel came out speckled, a star rang).
+// 0.5-1 px, and the frames hold many times the edges. Below floor_lo r0 reads 0 and ramps to
+// r0 at floor_hi (an edge in focus reads 0-0.75 px). Not the luma-guided filter the relative
+// radius is spread with: its locally linear model in luma turns sparse readings into a radius
+// that follows the texture (docs/method.md, Radius estimation).
 // Where the edges' floor reads past floor_max, the blur is read from tile spectra instead
 // (spectral_blur.h).
 torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, const torch::Tensor& region,
@@ -286,9 +270,8 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     report = buf;
     if (floor_median <= o.spectral_from) return r0;
     // Large blur: edges read it low. A wall blurred 6-9 px carries its texture (glyphs, checkers of
-    // 1-6 px) inside every profile's window, and only the edges that look narrower pass (synth
-    // walkout: the wall read 5.3-6.0 px for 7.5-9.0; fitted with that floor, 600 steps, 16.94 ->
-    // 14.84 dB, every band of the wall below the input; 8 frames of it read 4.1 px for 7.2). The
+    // 1-6 px) inside every profile's window, and only the edges that look narrower pass; a floor
+    // that low makes the fit worse than the input (docs/method.md, Radius estimation). The
     // blur is then read from the spectra of tiles clear of the other layer (spectral_blur.h),
     // which needs a large blur to be told from texture; where they read past floor_max, their
     // floor replaces the edges'. Otherwise the edges' floor stands up to floor_max, and past it
@@ -303,8 +286,7 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
             const SpectralBlurSamples s = measure_spectral_blur(lumas[t], allowed, d.blur, o.spectral_blur);
             tested += s.tiles;
             // A tile reading under floor_max contradicts the edges: a panel of checkers or a
-            // sunburst, whose harmonics a small blur explains better (synth walkout: 1.4-2 px
-            // on its bottom row of panels, blurred 5.5-6).
+            // sunburst, whose harmonics a small blur explains better.
             auto large = s.radius > o.floor_max;
             if (s.size())
                 add_readings(tiles, s.x.masked_select(large), s.y.masked_select(large), s.radius.masked_select(large),
@@ -345,7 +327,7 @@ struct LayerComposite {
 
 // 1. Every frame on a canvas that covers all of them (canvas pixel p reads frame t at
 //    to_canvas_t⁻¹ p): on a canvas of the reference frame's size, read with border padding,
-//    content entering a pan later took smeared border pixels as its "sharpest view".
+//    content entering a pan later would take smeared border pixels as its "sharpest view".
 // 2. All-in-focus: local contrast (box-filtered squared Laplacian of luma) picks, softly, the
 //    sharpest frame at each pixel among the views whose contrast window lies inside their frame.
 LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in, const torch::Tensor& region,
@@ -376,8 +358,8 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
     c.own_seen = (w.sum(0)[0] > 1e-6).to(torch::kFloat32);
     if (region.defined()) {
         // The layer's own views first, weighed against the sharpest of them (against every
-        // view's sharpest, a wall point seen blurred after a sharp subject had stood over it
-        // counted as never seen and kept no floor); where the layer is never seen, every view.
+        // view's sharpest, a wall point seen blurred after a sharp subject stood over it would
+        // count as never seen and keep no floor); where the layer is never seen, every view.
         auto own = (torch::stack(reg_region) > 0.5).to(torch::kFloat32);  // [T,1,Hc,Wc]
         auto co = contrast * own;
         auto wo = (co / co.amax({0}, true).clamp_min(1e-12)).pow(8) * valid * own;
@@ -562,10 +544,8 @@ void split_radius_by_layer(FitData& d, int margin) {
         // about the blur, and missing a part here and there): the map inside it holds the wall's
         // radius at its rim, and the wall's side of it the subject's radius where it missed a
         // part. The subject's radius is read where the mask is surest (its core) and only
-        // values near it stay the subject's; the same values next to the mask leave the wall's.
-        // Synth clips, 600 steps, the masks as they are -> this: pan (true radius) 24.36 ->
-        // 24.92 dB (split by the true alpha: 24.89), rack 27.84 -> 28.74, hunt 25.05 -> 25.04;
-        // walkout 20.13 -> 20.15; estimated radius: rack 25.76 -> 25.96, hunt 22.39 -> 22.37.
+        // values near it stay the subject's; the same values next to the mask leave the wall's
+        // (docs/method.md, Layered reblur).
         const double area = fg[t].sum().item<double>();
         const int k = std::max(margin, int(0.3 * std::sqrt(area / M_PI)));
         auto core = erode(fg[t].unsqueeze(0), k);
@@ -583,8 +563,7 @@ void split_radius_by_layer(FitData& d, int margin) {
             if (bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
             // Far from the mask the subject's layer is transparent and its radius only costs
             // time (the lens blur scatters every source pixel over its radius): there it takes
-            // the visible surface's. Synth pan, true radius, 10 min: 2771 steps (25.92 dB) with
-            // the subject's everywhere, 3209 (25.99) with this.
+            // the visible surface's (docs/method.md, Layered reblur).
             const int far = reach + int(std::ceil(r_core)) + 2;
             fg_region = F::max_pool2d(fg[t].unsqueeze(0), F::MaxPool2dFuncOptions(2 * far + 1).stride(1).padding(far));
         }
@@ -611,7 +590,7 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
     }
     // Two layers: the background registered by the camera homographies, the subject by its own
     // track (a moving subject is not where the wall was: compared pixel by pixel across frames it
-    // reads as blur; measured on the synth rack clip: 3-3.7 px on a subject in focus).
+    // reads as blur, even in focus).
     auto mask = (d.mask > 0.5).to(torch::kFloat32);
     auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o, &line_bg, report ? &report->fixed_focus_share : nullptr);
     std::vector<double> vx, vy, sc;

@@ -7,9 +7,9 @@
 // with L the fit's own blur layer (paper eq. 2), so the estimate is in the units the fit needs.
 // Where the frame is flat the cost does not depend on r; there the estimate is spread from
 // confident neighbours with the confidence-weighted guided filter (prepare/coc.h).
-// The single-image estimator (edge reblur ratio) reads dense texture far too low (measured on
-// the synth tripod clip: median 0.36 px where the truth is ~5 px); this one needs focus to vary
-// over the clip and a registration, which prepare provides.
+// The single-image estimator (edge reblur ratio) reads dense texture far too low
+// (docs/method.md, Radius estimation); this one needs focus to vary over the clip and a
+// registration, which prepare provides.
 // The stack alone is relative: the sharpest view of each point reads 0, so what a clip never
 // shows in focus would be left as shot. The composite's own blur r0 is therefore measured at its
 // edges (edge_blur.h, a single-image absolute estimate that only trusts isolated steps), spread

@@ -185,7 +185,7 @@ void FitWorker::start(const FitSettings& settings, bool resume) {
         const fs::path dir = fit_dir(*m_project);
         const bool can_resume = resume && FitEngine::has_checkpoint(dir);
         FitSettings s = settings;
-        // A fit from scratch takes this build's kernel; a resumed one keeps its checkpoint's.
+        // A fit from scratch takes the default kernel; a resumed one keeps its checkpoint's.
         if (!can_resume) s.setup.kernel = default_fit_kernel();
         const bool same_setup = m_engine && s.setup.coc_path == m_settings.setup.coc_path &&
                                 s.setup.mask_path == m_settings.setup.mask_path &&

@@ -1,6 +1,6 @@
 #pragma once
-// The studio's background thread (DESIGN.md "threads"): it owns the project's FitEngine, runs the
-// fit step by step, and renders what the UI asks for (a frame's layers, the atlases, the depth
+// The studio's background thread: it owns the project's FitEngine, runs the fit step by step,
+// and renders what the UI asks for (a frame's layers, the atlases, the depth
 // model) between two steps, so the UI thread never waits on LibTorch. The UI posts requests and
 // picks up results from mailboxes; nothing here touches GL or ImGui.
 #include <condition_variable>
@@ -28,7 +28,7 @@ public:
         FitSnapshot snap;
         std::vector<FitSnapshot> history;  // one entry per step (thinned when long)
         std::vector<std::string> log;
-        std::string error;                 // last error (kept until the next request)
+        std::string error;                 // last error (kept up to the next request)
         bool busy = false;                 // a job is running (prepare, render, export)
         std::string busy_what;
         double job_progress = 0.0;         // 0..1 of the running job when it reports one
