@@ -12,8 +12,8 @@
 
 #include "util/error.h"
 
-#ifndef REFOCUS_SHADER_DIR
-#define REFOCUS_SHADER_DIR "shaders"
+#ifndef SHADER_SOURCE_DIR
+#define SHADER_SOURCE_DIR "shaders"
 #endif
 
 namespace refocus {
@@ -178,7 +178,7 @@ struct StateGuard {
 }  // namespace
 
 std::string GlPreview::default_shader_dir() {
-    return REFOCUS_SHADER_DIR;
+    return SHADER_SOURCE_DIR;
 }
 
 GlPreview::GlPreview(const std::string& shader_dir) : m_dir(shader_dir) {

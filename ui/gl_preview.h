@@ -31,7 +31,7 @@ namespace refocus {
 class GlPreview {
   public:
     // Compiles the passes from `shader_dir` (default: the source tree's shaders/, set at build
-    // time through REFOCUS_SHADER_DIR). Throws refocus::Error naming the file and the GL log.
+    // time through SHADER_SOURCE_DIR). Throws refocus::Error naming the file and the GL log.
     explicit GlPreview(const std::string& shader_dir = default_shader_dir());
     ~GlPreview();
     GlPreview(const GlPreview&) = delete;

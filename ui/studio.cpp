@@ -1,5 +1,5 @@
-// Refocus Studio: the window loop, the menus and the modal prompts. Panels live in
-// studio_panels.cpp, the viewer and timeline in studio_view.cpp, the test script in
+// Refocus Studio: the window loop, the project actions and the side panel's tabs. The menus and
+// prompts are in studio_menu.cpp, each panel in its own *_panel.cpp, the test script in
 // studio_script.cpp.
 #include "studio.h"
 
@@ -10,87 +10,51 @@
 #include <backends/imgui_impl_opengl3.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cstdio>
 
 #include "io/image_file.h"
+#include "log_panel.h"
 #include "studio_app.h"
 #include "studio_script.h"
 #include "util/error.h"
 
 namespace refocus {
 
-const char* view_mode_name(ViewMode m) {
-    switch (m) {
-        case ViewMode::Input: return "input";
-        case ViewMode::Sharp: return "sharp";
-        case ViewMode::Refocused: return "refocused";
-        case ViewMode::Split: return "split";
-        case ViewMode::Radius: return "radius";
-        case ViewMode::Depth: return "depth";
-        case ViewMode::Alpha: return "alpha";
-    }
-    return "?";
-}
-
-ViewMode parse_view_mode(const std::string& n) {
-    for (ViewMode m : {ViewMode::Input, ViewMode::Sharp, ViewMode::Refocused, ViewMode::Split,
-                       ViewMode::Radius, ViewMode::Depth, ViewMode::Alpha})
-        if (n == view_mode_name(m)) return m;
-    throw Error("unknown view mode '" + n + "' (input, sharp, refocused, split, radius, depth, alpha)");
-}
-
-Studio::Studio(GLFWwindow* window, const StudioOptions& opts)
-    : m_window(window), m_opts(opts), m_worker(std::make_unique<FitWorker>()) {
+Studio::Studio(GLFWwindow* window, const StudioOptions& opts) : m_window(window), m_opts(opts) {
+    m_ctx.worker = std::make_unique<FitWorker>();
     try {
-        m_gl = std::make_unique<GlPreview>();
+        m_ctx.gl = std::make_unique<GlPreview>();
     } catch (const std::exception& e) {
-        m_gl_error = e.what();  // the refocused view says why it is off
+        m_ctx.gl_error = e.what();  // the refocused view says why it is off
     }
-    m_atlas_panel.set_edits(&m_doc.edits());
+    m_atlas.set_edits(&m_ctx.doc.edits());
 }
 
 Studio::~Studio() {
-    m_worker.reset();  // checkpoints a running fit
-    if (m_tex) glDeleteTextures(1, &m_tex);
-    if (m_slice_tex) glDeleteTextures(1, &m_slice_tex);
+    m_ctx.worker.reset();  // checkpoints a running fit
+    release_viewer(m_viewer);
 }
 
 void Studio::after_open() {
-    m_source = std::make_unique<FrameSource>(m_doc.project().dir.string());
-    m_worker->open(m_doc.project());
-    m_atlas_panel.set_edits(&m_doc.edits());
-    m_frame = std::clamp(m_frame, 0, m_source->frames() - 1);
-    m_view.reset();
-    m_depth.reset();
-    m_depth_requested = false;
-    m_atlas_version = m_edit_version = -1;
-    m_requested_frame = -1;
-    m_view_dirty = m_slice_dirty = true;
-    m_exp_first = 0;
-    m_exp_last = m_source->frames() - 1;
-    const FitSettings s = read_fit_settings(m_doc.project());
-    const char* presets[] = {"fast", "paper", "perframe"};
-    for (int i = 0; i < 3; ++i)
-        if (s.fit.preset == presets[i]) m_preset = i;
-    if (s.fit.iters > 0 && s.fit.minutes <= 0) {
-        m_use_iters = true;
-        m_budget_iters = static_cast<int>(s.fit.iters);
-    } else if (s.fit.minutes > 0) {
-        m_budget_minutes = static_cast<float>(s.fit.minutes);
-    }
-    m_seed = static_cast<int>(s.fit.seed);
-    std::snprintf(m_coc_path, sizeof m_coc_path, "%s", s.setup.coc_path.c_str());
-    std::snprintf(m_mask_path, sizeof m_mask_path, "%s", s.setup.mask_path.c_str());
-    if (m_exp_out[0] == 0)
-        std::snprintf(m_exp_out, sizeof m_exp_out, "%s", (m_doc.project().dir / "export").string().c_str());
-    glfwSetWindowTitle(m_window, ("Refocus Studio - " + m_doc.project().dir.string()).c_str());
+    m_ctx.source = std::make_unique<FrameSource>(m_ctx.doc.project().dir.string());
+    m_ctx.worker->open(m_ctx.doc.project());
+    m_atlas.set_edits(&m_ctx.doc.edits());
+    m_ctx.frame = std::clamp(m_ctx.frame, 0, m_ctx.source->frames() - 1);
+    m_ctx.view.reset();
+    m_ctx.depth.reset();
+    m_ctx.depth_requested = false;
+    m_ctx.atlas_version = m_ctx.edit_version = -1;
+    m_ctx.requested_frame = -1;
+    m_ctx.view_dirty = m_viewer.slice.dirty = true;
+    reset_export_panel(m_export, m_ctx);
+    load_fit_panel(m_fit, m_ctx.doc.project());
+    glfwSetWindowTitle(m_window, ("Refocus Studio - " + m_ctx.doc.project().dir.string()).c_str());
 }
 
 void Studio::open_project(const std::string& path) {
-    if (busy_with_files()) throw Error("wait until the project being copied or made is done");
+    if (m_ctx.busy_with_files()) throw Error("wait until the project being copied or made is done");
     if (is_project_path(path)) {
-        m_doc.open(path);
+        m_ctx.doc.open(path);
         after_open();
         return;
     }
@@ -101,7 +65,7 @@ void Studio::open_project(const std::string& path) {
     for (int i = 2; fs::exists(dir) && !is_project_path(dir.string()); ++i)
         dir = clip.parent_path() / (clip.stem().string() + "_refocus" + std::to_string(i));
     if (is_project_path(dir.string())) {
-        m_doc.open(dir.string());
+        m_ctx.doc.open(dir.string());
         after_open();
     } else {
         new_project(clip.string(), dir.string());
@@ -111,12 +75,12 @@ void Studio::open_project(const std::string& path) {
 void Studio::new_project(const std::string& clip, const std::string& dir) {
     // Ingesting decodes every frame into the EXR cache: minutes for a long clip, so it runs on
     // the worker with a progress bar; the project opens when it is done.
-    if (busy_with_files()) throw Error("a project is already being copied or made");
+    if (m_ctx.busy_with_files()) throw Error("a project is already being copied or made");
     if (clip.empty() || dir.empty()) throw Error("give a clip and a new project folder");
-    m_worker->stop();
-    m_ingest_dir = fs::absolute(dir).string();
-    FitWorker* w = m_worker.get();
-    m_worker->post("ingest " + clip, [w, clip, dir](FitEngine*, const Project&) {
+    m_ctx.worker->stop();
+    m_ctx.ingest_dir = fs::absolute(dir).string();
+    FitWorker* w = m_ctx.worker.get();
+    m_ctx.worker->post("ingest " + clip, [w, clip, dir](FitEngine*, const Project&) {
         try {
             Project p = create_project(clip, dir, {}, [w](int i, int n) { w->set_job_progress(double(i) / n); });
             w->post_result("ingested:" + p.dir.string());
@@ -127,22 +91,22 @@ void Studio::new_project(const std::string& clip, const std::string& dir) {
 }
 
 void Studio::save() {
-    if (!m_doc.is_open()) throw Error("no project is open");
-    m_doc.save();
-    m_info = "saved " + m_doc.project().project_file().string();
+    if (!m_ctx.doc.is_open()) throw Error("no project is open");
+    m_ctx.doc.save();
+    m_ctx.info = "saved " + m_ctx.doc.project().project_file().string();
 }
 
 void Studio::save_as(const std::string& dir) {
     // The copy holds the frame cache (gigabytes for a long clip): it runs on the worker with a
     // progress bar, and the document moves to the copy when it is done (poll_results).
-    if (!m_doc.is_open()) throw Error("no project is open");
-    if (busy_with_files()) throw Error("a project is already being copied or made");
-    const fs::path to = m_doc.save_as_target(dir);
-    m_worker->stop();
-    m_save_as_dir = to.string();
-    FitWorker* w = m_worker.get();
-    const fs::path from = m_doc.project().dir;
-    m_worker->post("save as " + to.string(), [w, from, to](FitEngine*, const Project&) {
+    if (!m_ctx.doc.is_open()) throw Error("no project is open");
+    if (m_ctx.busy_with_files()) throw Error("a project is already being copied or made");
+    const fs::path to = m_ctx.doc.save_as_target(dir);
+    m_ctx.worker->stop();
+    m_ctx.save_as_dir = to.string();
+    FitWorker* w = m_ctx.worker.get();
+    const fs::path from = m_ctx.doc.project().dir;
+    m_ctx.worker->post("save as " + to.string(), [w, from, to](FitEngine*, const Project&) {
         try {
             StudioDoc::copy_project_files(from, to, [w](int i, int n) {
                 w->set_job_progress(n > 0 ? double(i) / n : 1.0);
@@ -156,12 +120,8 @@ void Studio::save_as(const std::string& dir) {
 }
 
 void Studio::request_close() {
-    if (m_doc.dirty()) {
-        m_pending = Pending::Quit;
-        m_show_unsaved = true;
-    } else {
-        m_quit = true;
-    }
+    if (m_ctx.doc.dirty()) ask_unsaved(DialogState::Pending::Quit);
+    else m_quit = true;
 }
 
 void Studio::screenshot(const std::string& path) {
@@ -180,222 +140,133 @@ void Studio::screenshot(const std::string& path) {
     int ww, wh;
     glfwGetWindowSize(m_window, &ww, &wh);
     const float s = ww > 0 ? float(w) / ww : 1.0f;
+    const ViewerState& v = m_viewer;
     nlohmann::json meta = {{"window", {w, h}},
-                           {"frame", m_frame},
-                           {"mode", view_mode_name(m_mode)},
-                           {"image_rect", {m_img_x * s, m_img_y * s, m_img_w * s, m_img_h * s}},
-                           {"longest_frame_ms", m_longest_frame_ms},
-                           {"longest_frame_during_fit_ms", m_longest_fit_frame_ms}};
+                           {"frame", m_ctx.frame},
+                           {"mode", v.mode->name},
+                           {"image_rect", {v.img_x * s, v.img_y * s, v.img_w * s, v.img_h * s}},
+                           {"longest_frame_ms", m_ctx.times.longest_frame_ms},
+                           {"longest_frame_during_fit_ms", m_ctx.times.longest_fit_frame_ms}};
     write_file_atomic(path + ".json", meta.dump(2));
 }
 
-void Studio::draw_menu() {
-    if (!ImGui::BeginMainMenuBar()) return;
-    if (ImGui::BeginMenu("File")) {
-        const bool idle = !busy_with_files();
-        if (ImGui::MenuItem("New from clip...", "Ctrl+N", false, idle)) m_show_new = true;
-        if (ImGui::MenuItem("Open...", "Ctrl+O", false, idle)) m_show_open = true;
-        if (ImGui::BeginMenu("Open recent", idle)) {
-            auto list = recent_projects();
-            if (list.empty()) ImGui::MenuItem("(none)", nullptr, false, false);
-            for (const auto& r : list)
-                if (ImGui::MenuItem(r.c_str())) {
-                    if (m_doc.dirty()) {
-                        m_pending = Pending::Open;
-                        m_pending_path = r;
-                        m_show_unsaved = true;
-                    } else {
-                        guarded([&] { open_project(r); });
-                    }
-                }
-            ImGui::EndMenu();
-        }
-        if (ImGui::MenuItem("Save", "Ctrl+S", false, m_doc.is_open())) guarded([&] { save(); });
-        if (ImGui::MenuItem("Save as...", "Ctrl+Shift+S", false, m_doc.is_open() && idle)) m_show_save_as = true;
-        ImGui::Separator();
-        if (ImGui::MenuItem("Quit", "Ctrl+Q")) request_close();
-        ImGui::EndMenu();
-    }
-    if (ImGui::BeginMenu("View")) {
-        for (ViewMode m : {ViewMode::Input, ViewMode::Sharp, ViewMode::Refocused, ViewMode::Split,
-                           ViewMode::Radius, ViewMode::Depth, ViewMode::Alpha})
-            if (ImGui::MenuItem(view_mode_name(m), nullptr, m_mode == m && !m_show_atlas)) {
-                m_mode = m;
-                m_show_atlas = false;
-                m_view_dirty = true;
-            }
-        ImGui::Separator();
-        ImGui::MenuItem("Atlas editor", "Tab", &m_show_atlas);
-        if (ImGui::MenuItem("Time slice", nullptr, &m_time_slice)) m_slice_dirty = true;
-        ImGui::EndMenu();
-    }
-    const auto st = m_worker->status();
-    ImGui::SameLine(ImGui::GetWindowWidth() - 420);
-    ImGui::TextDisabled("%s%s  |  fit: %s%s", m_doc.is_open() ? m_doc.project().name.c_str() : "",
-                        m_doc.dirty() ? " *" : "", state_name(st.state),
-                        st.busy ? ("  |  " + st.busy_what).c_str() : "");
-    ImGui::EndMainMenuBar();
+bool Studio::view_current() const {
+    return m_ctx.view_at_playhead() && !m_ctx.view_dirty && m_ctx.requested_frame < 0;
 }
 
-namespace {
-bool path_popup(const char* title, const char* prompt, char* buf, size_t n, const char* ok) {
-    bool go = false;
-    if (ImGui::BeginPopupModal(title, nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-        ImGui::TextUnformatted(prompt);
-        ImGui::SetNextItemWidth(520);
-        if (ImGui::IsWindowAppearing()) ImGui::SetKeyboardFocusHere();
-        go = ImGui::InputText("##path", buf, n, ImGuiInputTextFlags_EnterReturnsTrue);
-        go |= ImGui::Button(ok);
-        ImGui::SameLine();
-        if (ImGui::Button("Cancel") || go) ImGui::CloseCurrentPopup();
-        ImGui::EndPopup();
-    }
-    return go;
+void Studio::end_frame_timing() {
+    FrameTimes& t = m_ctx.times;
+    const double ms = (glfwGetTime() - t.frame_start) * 1000.0;
+    if (++t.frames_drawn <= 5) return;  // start-up: fonts, shader compilation
+    t.longest_frame_ms = std::max(t.longest_frame_ms, ms);
+    if (m_ctx.worker->status().state == FitWorker::State::Fitting)
+        t.longest_fit_frame_ms = std::max(t.longest_fit_frame_ms, ms);
 }
-}  // namespace
 
-void Studio::draw_modals() {
-    auto open_popup = [](bool& flag, const char* name) {
-        if (flag) ImGui::OpenPopup(name);
-        flag = false;
-    };
-    open_popup(m_show_open, "Open project");
-    open_popup(m_show_new, "New project");
-    open_popup(m_show_save_as, "Save project as");
-    open_popup(m_show_unsaved, "Unsaved changes");
-    if (path_popup("Open project", "Project folder, or a clip (video, image folder or pattern):",
-                   m_path_buf, sizeof m_path_buf, "Open")) {
-        if (m_doc.dirty()) {
-            m_pending = Pending::Open;
-            m_pending_path = m_path_buf;
-            m_show_unsaved = true;
-        } else {
-            guarded([&] { open_project(m_path_buf); });
-        }
+void Studio::poll_results() {
+    if (!m_export.running && !m_ctx.busy_with_files()) return;
+    auto r = m_ctx.worker->take_result();
+    if (!r) return;
+    if (r->rfind("copied:", 0) == 0) {
+        m_ctx.save_as_dir.clear();
+        m_ctx.guarded([&] {
+            m_ctx.doc.finish_save_as(r->substr(7));
+            after_open();
+            m_ctx.info = "saved as " + m_ctx.doc.project().dir.string();
+        });
+    } else if (r->rfind("save as failed:", 0) == 0) {
+        m_ctx.save_as_dir.clear();
+        after_open();  // the worker was stopped for the copy: reopen the project as it was
+        m_ctx.error = r->substr(15);
+    } else if (r->rfind("ingested:", 0) == 0) {
+        m_ctx.ingest_dir.clear();
+        m_ctx.guarded([&] {
+            m_ctx.doc.open(r->substr(9));
+            after_open();
+        });
+    } else if (r->rfind("ingest failed:", 0) == 0) {
+        m_ctx.ingest_dir.clear();
+        m_ctx.error = r->substr(14);
+    } else {
+        m_export.running = false;
+        m_export.result = *r;
+        m_ctx.info = *r;
     }
-    if (ImGui::BeginPopupModal("New project", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-        ImGui::TextUnformatted("Clip (video file, image folder or printf pattern):");
-        ImGui::SetNextItemWidth(520);
-        ImGui::InputText("##clip", m_clip_buf, sizeof m_clip_buf);
-        ImGui::TextUnformatted("New project folder (created):");
-        ImGui::SetNextItemWidth(520);
-        ImGui::InputText("##dir", m_path_buf, sizeof m_path_buf);
-        if (ImGui::Button("Create")) {
-            ImGui::CloseCurrentPopup();
-            if (m_doc.dirty()) {
-                m_pending = Pending::New;
-                m_pending_clip = m_clip_buf;
-                m_pending_path = m_path_buf;
-                m_show_unsaved = true;
-            } else {
-                guarded([&] { new_project(m_clip_buf, m_path_buf); });
-            }
+}
+
+void Studio::draw_side_panel() {
+    const ImGuiViewport* vp = ImGui::GetMainViewport();
+    ImGui::SetNextWindowPos(ImVec2(vp->WorkPos.x + vp->WorkSize.x - kSidePanelWidth, vp->WorkPos.y));
+    ImGui::SetNextWindowSize(ImVec2(kSidePanelWidth, vp->WorkSize.y));
+    ImGui::Begin("Panel", nullptr,
+                 ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse |
+                     ImGuiWindowFlags_NoTitleBar | ImGuiWindowFlags_NoSavedSettings);
+    if (!m_ctx.info.empty()) ImGui::TextDisabled("%s", m_ctx.info.c_str());
+    if (ImGui::BeginTabBar("tabs")) {
+        if (ImGui::BeginTabItem("Fit")) {
+            draw_fit_panel(m_fit, m_ctx);
+            ImGui::EndTabItem();
         }
-        ImGui::SameLine();
-        if (ImGui::Button("Cancel")) ImGui::CloseCurrentPopup();
-        ImGui::EndPopup();
+        if (ImGui::BeginTabItem("Focus")) {
+            draw_focus_panel(m_focus, m_viewer, m_ctx);
+            ImGui::EndTabItem();
+        }
+        if (ImGui::BeginTabItem("Export")) {
+            draw_export_panel(m_export, m_ctx);
+            ImGui::EndTabItem();
+        }
+        if (ImGui::BeginTabItem("Log")) {
+            draw_log_panel(m_ctx);
+            ImGui::EndTabItem();
+        }
+        ImGui::EndTabBar();
     }
-    if (path_popup("Save project as", "New project folder (the project, its fit and edits are copied):",
-                   m_path_buf, sizeof m_path_buf, "Save"))
-        guarded([&] { save_as(m_path_buf); });
-    if (ImGui::BeginPopupModal("Unsaved changes", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-        ImGui::Text("%s has unsaved changes (focus keyframes, atlas paint).",
-                    m_doc.is_open() ? m_doc.project().name.c_str() : "The project");
-        auto proceed = [&] {
-            const Pending p = m_pending;
-            m_pending = Pending::None;
-            if (p == Pending::Quit) m_quit = true;
-            if (p == Pending::Open) guarded([&] { open_project(m_pending_path); });
-            if (p == Pending::New) guarded([&] { new_project(m_pending_clip, m_pending_path); });
-        };
-        if (ImGui::Button("Save")) {
-            ImGui::CloseCurrentPopup();
-            bool ok = true;
-            try {
-                save();
-            } catch (const std::exception& e) {
-                ok = false;  // the error shows; nothing is closed
-                set_error(e.what());
-            }
-            if (ok) proceed();
-        }
-        ImGui::SameLine();
-        if (ImGui::Button("Discard")) {
-            ImGui::CloseCurrentPopup();
-            m_doc.discard_autosave();
-            proceed();
-        }
-        ImGui::SameLine();
-        if (ImGui::Button("Cancel")) {
-            m_pending = Pending::None;
-            ImGui::CloseCurrentPopup();
-        }
-        ImGui::EndPopup();
+    ImGui::End();
+}
+
+// Shortcuts outside text fields: Ctrl+S / Ctrl+Shift+S / Ctrl+O / Ctrl+N / Ctrl+Q, Tab for the
+// atlas editor, the view modes' keys, and space / arrows for playback.
+void Studio::handle_keys() {
+    ImGuiIO& io = ImGui::GetIO();
+    if (io.WantTextInput) return;
+    const bool ctrl = io.KeyCtrl;
+    if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_S)) {
+        if (io.KeyShift) m_dialogs.show_save_as = true;
+        else m_ctx.guarded([&] { save(); });
     }
-    if (m_doc.is_open() && m_doc.has_newer_autosave()) ImGui::OpenPopup("Restore autosave");
-    if (ImGui::BeginPopupModal("Restore autosave", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-        ImGui::TextUnformatted("This project has autosaved changes newer than its last save\n"
-                               "(the studio was closed without saving). Restore them?");
-        if (ImGui::Button("Restore")) {
-            guarded([&] { m_doc.restore_autosave(); });
-            m_view_dirty = true;
-            ImGui::CloseCurrentPopup();
-        }
-        ImGui::SameLine();
-        if (ImGui::Button("Discard")) {
-            m_doc.discard_autosave();
-            ImGui::CloseCurrentPopup();
-        }
-        ImGui::EndPopup();
-    }
-    if (!m_error.empty()) ImGui::OpenPopup("Error");
-    if (ImGui::BeginPopupModal("Error", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-        ImGui::PushTextWrapPos(600);
-        ImGui::TextUnformatted(m_error.c_str());
-        ImGui::PopTextWrapPos();
-        if (ImGui::Button("OK")) {
-            m_error.clear();
-            ImGui::CloseCurrentPopup();
-        }
-        ImGui::EndPopup();
+    if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_O)) m_dialogs.show_open = true;
+    if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_N)) m_dialogs.show_new = true;
+    if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_Q)) request_close();
+    if (!ctrl && ImGui::IsKeyPressed(GLFW_KEY_TAB)) m_viewer.show_atlas = !m_viewer.show_atlas;
+    if (!ctrl)
+        for (const ViewModeInfo& m : view_modes())
+            if (m.key && ImGui::IsKeyPressed(m.key)) set_mode(m);
+    if (m_ctx.source && !m_viewer.show_atlas) {
+        if (ImGui::IsKeyPressed(GLFW_KEY_SPACE)) toggle_playback(m_timeline);
+        if (ImGui::IsKeyPressed(GLFW_KEY_LEFT)) set_frame(m_ctx.frame - 1);
+        if (ImGui::IsKeyPressed(GLFW_KEY_RIGHT)) set_frame(m_ctx.frame + 1);
     }
 }
 
 void Studio::frame() {
-    m_frame_start = glfwGetTime();
-    ImGuiIO& io = ImGui::GetIO();
-    if (!io.WantTextInput) {
-        const bool ctrl = io.KeyCtrl;
-        if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_S)) {
-            if (io.KeyShift) m_show_save_as = true;
-            else guarded([&] { save(); });
-        }
-        if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_O)) m_show_open = true;
-        if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_N)) m_show_new = true;
-        if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_Q)) request_close();
-        if (!ctrl && ImGui::IsKeyPressed(GLFW_KEY_TAB)) m_show_atlas = !m_show_atlas;
-        if (m_source && !m_show_atlas) {
-            if (ImGui::IsKeyPressed(GLFW_KEY_SPACE)) {
-                m_playing = !m_playing;
-                m_play_clock = glfwGetTime();
-            }
-            if (ImGui::IsKeyPressed(GLFW_KEY_LEFT)) set_frame(m_frame - 1);
-            if (ImGui::IsKeyPressed(GLFW_KEY_RIGHT)) set_frame(m_frame + 1);
-        }
-    }
+    m_ctx.times.frame_start = glfwGetTime();
+    handle_keys();
     if (glfwWindowShouldClose(m_window) && !m_quit) {
         glfwSetWindowShouldClose(m_window, 0);
         request_close();
     }
-    poll_worker();
+    poll_fit_output(m_viewer, m_atlas, m_ctx);
     poll_results();
     draw_menu();
-    draw_viewer();
-    draw_timeline();
+    if (auto click = draw_viewer(m_viewer, m_atlas, m_ctx)) {
+        if (click->pick == ViewerState::Pick::Focus) m_ctx.guarded([&] { focus_at_pixel(m_ctx.frame, click->x, click->y); });
+        if (click->pick == ViewerState::Pick::Track) m_ctx.guarded([&] { track_pixel(m_ctx.frame, click->x, click->y); });
+    }
+    draw_timeline(m_timeline, m_ctx);
     draw_side_panel();
     draw_modals();
-    if (m_doc.is_open()) guarded([&] {
-            if (m_doc.autosave_if_due(glfwGetTime())) m_info = "autosaved";
+    if (m_ctx.doc.is_open()) m_ctx.guarded([&] {
+            if (m_ctx.doc.autosave_if_due(glfwGetTime())) m_ctx.info = "autosaved";
         });
 }
 

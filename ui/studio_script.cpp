@@ -2,11 +2,13 @@
 
 #include <GLFW/glfw3.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 
 #include "io/image_file.h"
 #include "studio_app.h"
+#include "studio_presets.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -61,7 +63,6 @@ StudioScript::StudioScript(const std::string& path) : m_path(path) {
     }
 }
 
-
 int StudioScript::advance(Studio& studio) {
     while (m_index < m_steps.size()) {
         const json& step = m_steps[m_index];
@@ -99,79 +100,113 @@ int StudioScript::advance(Studio& studio) {
 }
 
 bool StudioScript::run_step(Studio& st, const json& step) {
-    auto first = m_settle++ == 0;
-    FitWorker& w = st.worker();
-    auto worker_idle = [&] {
-        auto s = w.status();
-        if (!s.error.empty() && s.state == FitWorker::State::Failed) throw Error(s.error);
-        return !s.busy && s.state != FitWorker::State::Preparing && s.state != FitWorker::State::Fitting &&
-               s.state != FitWorker::State::Paused;
-    };
+    const bool first = m_settle++ == 0;
+    // The step's kind is its key; each group below answers for its own keys.
+    for (auto group : {&StudioScript::project_step, &StudioScript::view_step, &StudioScript::edit_step,
+                       &StudioScript::check_step})
+        if (std::optional<bool> done = (this->*group)(st, step, first)) return *done;
+    throw Error("unknown step " + step.dump());
+}
+
+bool StudioScript::worker_idle(Studio& st) const {
+    auto s = st.m_ctx.worker->status();
+    if (!s.error.empty() && s.state == FitWorker::State::Failed) throw Error(s.error);
+    return !s.busy && s.state != FitWorker::State::Preparing && s.state != FitWorker::State::Fitting &&
+           s.state != FitWorker::State::Paused;
+}
+
+// open, new, fit, wait_depth, save, save_as, reopen.
+std::optional<bool> StudioScript::project_step(Studio& st, const json& step, bool first) {
+    StudioContext& ctx = st.m_ctx;
     if (step.contains("open")) {
         if (first) st.open_project(step["open"].get<std::string>());
-        return worker_idle() && (st.view_current() || !w.has_engine());
+        return worker_idle(st) && (st.view_current() || !ctx.worker->has_engine());
     }
     if (step.contains("new")) {
         if (first) st.new_project(step["new"].at("clip"), step["new"].at("project"));
-        return !st.ingesting() && st.m_doc.is_open() && worker_idle();
+        return !st.ingesting() && ctx.doc.is_open() && worker_idle(st);
     }
     if (step.contains("fit")) {
         const json& f = step["fit"];
         if (first) {
-            st.m_preset = 0;
-            const std::string preset = f.value("preset", "fast");
-            const char* names[] = {"fast", "paper", "perframe"};
-            for (int i = 0; i < 3; ++i)
-                if (preset == names[i]) st.m_preset = i;
-            st.m_use_iters = f.contains("iters");
-            st.m_budget_iters = f.value("iters", 0);
-            st.m_budget_minutes = f.value("minutes", 1.0f);
+            st.m_fit.preset = std::max(0, studio_preset_index(f.value("preset", "fast")));
+            st.m_fit.use_iters = f.contains("iters");
+            st.m_fit.budget_iters = f.value("iters", 0);
+            st.m_fit.budget_minutes = f.value("minutes", 1.0f);
             st.start_fit(f.value("resume", false));
             return false;
         }
         if (m_settle < 3) return false;  // let the worker pick the job up
-        if (!worker_idle()) return false;
-        if (!w.has_engine()) throw Error("the fit ended without a fitted engine: " + w.status().error);
+        if (!worker_idle(st)) return false;
+        if (!ctx.worker->has_engine()) throw Error("the fit ended without a fitted engine: " + ctx.worker->status().error);
         return true;
     }
-    if (step.contains("wait_depth")) return st.m_depth != nullptr && st.view_current();
+    if (step.contains("wait_depth")) return ctx.depth != nullptr && st.view_current();
+    if (step.contains("save")) {
+        st.save();
+        return true;
+    }
+    if (step.contains("save_as")) {
+        if (first) st.save_as(step["save_as"]);
+        return !st.saving_as() && worker_idle(st);
+    }
+    if (step.contains("reopen")) {
+        if (first) {
+            const std::string dir = ctx.doc.project().dir.string();
+            ctx.doc.close();
+            st.open_project(dir);
+        }
+        return worker_idle(st) && (st.view_current() || !ctx.worker->has_engine());
+    }
+    return std::nullopt;
+}
+
+// frame, mode, atlas_view, time_slice, split.
+std::optional<bool> StudioScript::view_step(Studio& st, const json& step, bool first) {
+    ViewerState& v = st.m_viewer;
     if (step.contains("frame")) {
         if (first) st.set_frame(step["frame"].get<int>());
-        return st.view_current() || st.m_mode == ViewMode::Input;
+        return st.view_current() || !v.mode->needs_fit;
     }
     if (step.contains("mode")) {
-        if (first) st.set_mode(parse_view_mode(step["mode"]));
-        return st.view_current() || st.m_mode == ViewMode::Input;
+        if (first) st.set_mode(view_mode(step["mode"]));
+        return st.view_current() || !v.mode->needs_fit;
     }
     if (step.contains("atlas_view")) {
-        st.m_show_atlas = step["atlas_view"].get<bool>();
+        v.show_atlas = step["atlas_view"].get<bool>();
         return m_settle > 2;  // drawn
     }
     if (step.contains("time_slice")) {
-        if (step["time_slice"].is_boolean() && !step["time_slice"].get<bool>()) {
-            st.m_time_slice = false;
+        const json& ts = step["time_slice"];
+        if (ts.is_boolean() && !ts.get<bool>()) {
+            v.slice.on = false;
             return true;
         }
         if (first) {
-            st.m_time_slice = true;
-            st.m_slice_row = step["time_slice"].value("row", -1);
-            st.m_slice_dirty = true;
+            v.slice.on = true;
+            v.slice.row = ts.value("row", -1);
+            v.slice.dirty = true;
         }
-        if (!(m_settle > 3 && !st.m_slice_job && !st.m_slice_key.empty())) return false;
-        if (step["time_slice"].contains("save"))
-            write_image_file(step["time_slice"]["save"].get<std::string>(), st.m_slice_image, PixelFormat::Png8);
+        if (!(m_settle > 3 && !v.slice.job && !v.slice.key.empty())) return false;
+        if (ts.contains("save")) write_image_file(ts["save"].get<std::string>(), v.slice.image, PixelFormat::Png8);
         return true;
     }
     if (step.contains("split")) {
         if (first) {
             const json& sp = step["split"];
-            st.m_split_a = parse_view_mode(sp.value("left", "input"));
-            st.m_split_b = parse_view_mode(sp.value("right", "refocused"));
-            st.m_split = sp.value("wipe", 0.5f);
-            st.set_mode(ViewMode::Split);
+            v.split_a = &view_mode(sp.value("left", "input"));
+            v.split_b = &view_mode(sp.value("right", "refocused"));
+            v.split = sp.value("wipe", 0.5f);
+            st.set_mode(view_mode("split"));
         }
         return st.view_current();
     }
+    return std::nullopt;
+}
+
+// key, focus_click, track_click, paint, export.
+std::optional<bool> StudioScript::edit_step(Studio& st, const json& step, bool first) {
+    StudioContext& ctx = st.m_ctx;
     if (step.contains("key")) {
         const json& k = step["key"];
         st.set_key(k.at("lane"), k.at("frame"), k.at("value"), parse_easing(k.value("easing", "ease")));
@@ -180,7 +215,7 @@ bool StudioScript::run_step(Studio& st, const json& step) {
     if (step.contains("focus_click") || step.contains("track_click")) {
         const json& c = step.contains("focus_click") ? step["focus_click"] : step["track_click"];
         if (first) st.set_frame(c.at("frame"));
-        if (!(st.view_current() && st.m_depth)) return false;
+        if (!(st.view_current() && ctx.depth)) return false;
         if (step.contains("focus_click")) st.focus_at_pixel(c.at("frame"), c.at("x"), c.at("y"));
         else st.track_pixel(c.at("frame"), c.at("x"), c.at("y"));
         return true;
@@ -197,9 +232,9 @@ bool StudioScript::run_step(Studio& st, const json& step) {
         std::vector<std::array<float, 2>> pts;
         for (const auto& q : p.at("points")) pts.push_back({q.at(0).get<float>(), q.at(1).get<float>()});
         const int layer = p.value("layer", "bg") == "fg" ? 1 : 0;
-        if (st.m_doc.edits().layer(layer).width() == 0) return false;  // atlases not here yet
-        if (!st.m_atlas_panel.paint_stroke(layer, pts, b)) throw Error("the paint stroke was refused");
-        st.m_doc.mark_dirty();
+        if (ctx.doc.edits().layer(layer).width() == 0) return false;  // atlases not here yet
+        if (!st.m_atlas.paint_stroke(layer, pts, b)) throw Error("the paint stroke was refused");
+        ctx.doc.mark_dirty();
         return true;
     }
     if (step.contains("export")) {
@@ -211,24 +246,14 @@ bool StudioScript::run_step(Studio& st, const json& step) {
         if (st.export_result().rfind("export failed", 0) == 0) throw Error(st.export_result());
         return true;
     }
-    if (step.contains("save")) {
-        st.save();
-        return true;
-    }
-    if (step.contains("save_as")) {
-        if (first) st.save_as(step["save_as"]);
-        return !st.saving_as() && worker_idle();
-    }
-    if (step.contains("reopen")) {
-        if (first) {
-            const std::string dir = st.m_doc.project().dir.string();
-            st.m_doc.close();
-            st.open_project(dir);
-        }
-        return worker_idle() && (st.view_current() || !w.has_engine());
-    }
+    return std::nullopt;
+}
+
+// screenshot, expect, stats, quit.
+std::optional<bool> StudioScript::check_step(Studio& st, const json& step, bool) {
+    StudioContext& ctx = st.m_ctx;
     if (step.contains("screenshot")) {
-        if (!(st.view_current() || st.m_mode == ViewMode::Input)) return false;
+        if (!(st.view_current() || !st.m_viewer.mode->needs_fit)) return false;
         if (m_settle < 3) return false;  // two drawn frames with the final image
         st.screenshot(step["screenshot"]);
         return true;
@@ -239,28 +264,29 @@ bool StudioScript::run_step(Studio& st, const json& step) {
             for (auto& [lane, count] : e["keys"].items()) {
                 int have = -1;
                 for (const LaneInfo& l : focus_lanes())
-                    if (lane == l.name) have = static_cast<int>((st.m_doc.focus().*(l.lane)).keys.size());
+                    if (lane == l.name) have = static_cast<int>((ctx.doc.focus().*(l.lane)).keys.size());
                 if (have != count.get<int>())
                     throw Error("expected " + count.dump() + " keys on lane " + lane + ", found " +
                                 std::to_string(have));
             }
-        if (e.contains("edits") && e["edits"].get<bool>() != st.m_doc.edits().has_edits())
+        if (e.contains("edits") && e["edits"].get<bool>() != ctx.doc.edits().has_edits())
             throw Error(std::string("expected ") + (e["edits"].get<bool>() ? "" : "no ") + "atlas edits");
-        if (e.contains("fitted") && e["fitted"].get<bool>() != w.has_engine())
+        if (e.contains("fitted") && e["fitted"].get<bool>() != ctx.worker->has_engine())
             throw Error("expected the project to be fitted");
-        if (e.contains("track") && e["track"].get<bool>() != st.m_doc.focus().track.has_value())
+        if (e.contains("track") && e["track"].get<bool>() != ctx.doc.focus().track.has_value())
             throw Error("expected a tracked focus point");
         return true;
     }
     if (step.contains("stats")) {
-        json s = {{"longest_frame_ms", st.longest_frame_ms()},
-                  {"longest_frame_during_fit_ms", st.longest_frame_during_fit_ms()},
-                  {"last_preview_ms", st.last_preview_ms()}};
+        const FrameTimes& t = st.times();
+        json s = {{"longest_frame_ms", t.longest_frame_ms},
+                  {"longest_frame_during_fit_ms", t.longest_fit_frame_ms},
+                  {"last_preview_ms", t.last_preview_ms}};
         write_file_atomic(step["stats"].get<std::string>(), s.dump(2));
         return true;
     }
     if (step.contains("quit")) return true;
-    throw Error("unknown step " + step.dump());
+    return std::nullopt;
 }
 
 }  // namespace refocus

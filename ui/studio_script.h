@@ -19,6 +19,7 @@
 //   {"stats": path}  (UI frame times as JSON)   {"quit": true}
 #include <nlohmann/json.hpp>
 
+#include <optional>
 #include <string>
 
 namespace refocus {
@@ -34,6 +35,12 @@ public:
 
 private:
     bool run_step(Studio& studio, const nlohmann::json& step);  // true: step finished
+    // One group of steps each: nullopt for a step of another group, else whether it finished.
+    std::optional<bool> project_step(Studio& st, const nlohmann::json& step, bool first);
+    std::optional<bool> view_step(Studio& st, const nlohmann::json& step, bool first);
+    std::optional<bool> edit_step(Studio& st, const nlohmann::json& step, bool first);
+    std::optional<bool> check_step(Studio& st, const nlohmann::json& step, bool first);
+    bool worker_idle(Studio& st) const;  // throws the fit's error when it failed
     std::string m_path;
     nlohmann::json m_steps;
     size_t m_index = 0;

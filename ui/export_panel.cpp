@@ -1,0 +1,143 @@
+#include "export_panel.h"
+
+#include <imgui.h>
+
+#include <algorithm>
+#include <cstdio>
+
+#include "fit/fit_session.h"
+#include "studio_context.h"
+#include "util/error.h"
+
+namespace refocus {
+
+namespace {
+
+// The export panel's passes, in its checkbox order.
+struct PassInfo {
+    const char* label;
+    const char* name;  // export_pass name
+};
+const PassInfo kPasses[] = {{"sharp plate", "sharp"}, {"refocused video", "refocus"},
+                            {"atlases (edited)", "atlas"}, {"alpha", "alpha"},
+                            {"radius (CoC)", "coc"},       {"inverse depth", "depth"},
+                            {"UV maps", "uv"},             {"reblur", "reblur"}};
+const char* kFormats[] = {"png", "tiff", "exr", "mp4"};
+
+struct ExportJob {
+    std::vector<std::string> passes;
+    std::string format, out;
+    int first = 0, last = 0;
+    double fps = 0;
+    // The document as it is now, saved or not.
+    std::shared_ptr<ProjectEdits> edits;
+    std::shared_ptr<Project> project;
+    std::shared_ptr<FocusTrack> focus;
+};
+
+// Runs on the worker: each pass into its own folder (or .mp4), the maps always as EXR.
+std::string run_export(FitEngine& engine, const ExportJob& job, FitWorker& w) {
+    int files = 0;
+    for (size_t i = 0; i < job.passes.size(); ++i) {
+        const ExportPass pass = parse_export_pass(job.passes[i]);
+        std::string fmt = job.format;
+        if ((pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth)) fmt = "exr";
+        if (pass == ExportPass::Atlas && fmt == "mp4") fmt = "png";
+        std::string target = job.out;
+        if (fmt == "mp4") target = (fs::path(job.out) / (job.passes[i] + ".mp4")).string();
+        else if (pass != ExportPass::Atlas) target = (fs::path(job.out) / job.passes[i]).string();
+        fs::create_directories(fs::path(fmt == "mp4" ? fs::path(target).parent_path() : fs::path(target)));
+        ExportOptions eo;
+        eo.fps = job.fps;
+        eo.project = job.project.get();
+        eo.edits = job.edits.get();
+        eo.focus = job.focus.get();
+        eo.first = job.first;
+        eo.last = job.last;
+        eo.progress = [&](int done, int total) {
+            w.set_job_progress((i + double(done) / total) / job.passes.size());
+            return !w.cancelled();
+        };
+        auto written = export_pass(engine, pass, fmt, target, eo);
+        files += static_cast<int>(written.size());
+    }
+    return "exported " + std::to_string(files) + " files to " + job.out;
+}
+
+}  // namespace
+
+void reset_export_panel(ExportPanelState& s, StudioContext& ctx) {
+    s.first = 0;
+    s.last = ctx.source->frames() - 1;
+    if (s.out[0] == 0) std::snprintf(s.out, sizeof s.out, "%s", (ctx.doc.project().dir / "export").string().c_str());
+}
+
+void start_export(ExportPanelState& s, StudioContext& ctx, const nlohmann::json& req) {
+    if (!ctx.doc.is_open()) throw Error("no project is open");
+    if (!ctx.worker->has_engine()) throw Error("fit the project before exporting (Fit tab)");
+    if (s.running) throw Error("an export is already running");
+    auto job = std::make_shared<ExportJob>();
+    job->passes = req.at("what").get<std::vector<std::string>>();
+    job->format = req.value("format", "png");
+    job->out = req.at("out").get<std::string>();
+    const int n = ctx.source->frames();
+    job->first = req.value("first", 0), job->last = req.value("last", n - 1);
+    if (job->first < 0 || job->first > job->last || job->last >= n)
+        throw Error("export range " + std::to_string(job->first) + ".." + std::to_string(job->last) +
+                    " is outside the clip's frames 0.." + std::to_string(n - 1));
+    for (const auto& p : job->passes) parse_export_pass(p);  // refuse unknown passes now
+    job->edits = std::make_shared<ProjectEdits>(ctx.doc.edits());
+    job->project = std::make_shared<Project>(ctx.doc.project());
+    job->focus = std::make_shared<FocusTrack>(ctx.doc.focus());
+    job->fps = ctx.source->fps();
+    s.running = true;
+    s.result.clear();
+    FitWorker* w = ctx.worker.get();
+    ctx.worker->post("export", [job, w](FitEngine* engine, const Project&) {
+        std::string result;
+        try {
+            if (!engine) throw Error("the project has no fit to export");
+            result = run_export(*engine, *job, *w);
+        } catch (const std::exception& e) {
+            result = std::string("export failed: ") + e.what();
+        }
+        w->post_result(result);
+    });
+}
+
+void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
+    if (!ctx.doc.is_open()) {
+        ImGui::TextWrapped("Open a project first.");
+        return;
+    }
+    const FitWorker::Status st = ctx.worker->status();
+    ImGui::BeginDisabled(s.running);
+    for (int i = 0; i < 8; ++i) ImGui::Checkbox(kPasses[i].label, &s.pass[i]);
+    ImGui::Combo("format", &s.format, kFormats, 4);
+    ImGui::TextDisabled("radius, depth and UV are written as EXR; atlases as images");
+    const int n = ctx.source ? ctx.source->frames() : 1;
+    if (s.last < 0) s.last = n - 1;
+    int range[2] = {s.first, s.last};
+    if (ImGui::DragInt2("frames", range, 0.2f, 0, n - 1)) {
+        s.first = std::clamp(std::min(range[0], range[1]), 0, n - 1);
+        s.last = std::clamp(std::max(range[0], range[1]), 0, n - 1);
+    }
+    ImGui::InputText("folder", s.out, sizeof s.out);
+    if (ImGui::Button("Export")) {
+        nlohmann::json req = {{"format", kFormats[s.format]}, {"out", s.out}, {"first", s.first}, {"last", s.last}};
+        std::vector<std::string> what;
+        for (int i = 0; i < 8; ++i)
+            if (s.pass[i]) what.push_back(kPasses[i].name);
+        req["what"] = what;
+        ctx.guarded([&] { start_export(s, ctx, req); });
+    }
+    ImGui::EndDisabled();
+    if (s.running) {
+        ImGui::ProgressBar(static_cast<float>(st.job_progress), ImVec2(-1, 0));
+        if (ImGui::Button("Cancel")) ctx.worker->cancel_job();
+        ImGui::TextDisabled("files are complete or absent: a cancelled sequence is removed");
+    }
+    if (!s.result.empty()) ImGui::TextWrapped("%s", s.result.c_str());
+}
+
+}  // namespace refocus

@@ -1,0 +1,18 @@
+#pragma once
+// The timeline under the viewer: play / pause, frame steps, the playhead slider, and one lane
+// per focus parameter with its keyframes (click a lane to move the playhead, right-click a
+// keyframe to delete it).
+
+namespace refocus {
+
+struct StudioContext;
+
+struct TimelineState {
+    bool playing = false;
+    double play_clock = 0.0;  // the time the frame shown was due, while playing
+};
+
+void toggle_playback(TimelineState& s);
+void draw_timeline(TimelineState& s, StudioContext& ctx);
+
+}  // namespace refocus
