@@ -4,10 +4,15 @@
 #include <string>
 #include <vector>
 
+#include "fit/presets.h"
+
 namespace refocus {
 
-// fit_presets() (engine/fit/presets.h) once merged
-inline std::vector<std::string> studio_preset_names() { return {"fast", "paper", "perframe"}; }
+inline std::vector<std::string> studio_preset_names() {
+    std::vector<std::string> names;
+    for (const auto& p : fit_presets()) names.push_back(p.name);
+    return names;
+}
 
 // The preset's place in studio_preset_names(); -1 for a name it does not hold.
 inline int studio_preset_index(const std::string& name) {
