@@ -5,8 +5,8 @@
 #include "args.h"
 #include "commands.h"
 #include "edit/atlas_edit.h"
-#include "fit/fit_session.h"
-#include "fit/tensor_image.h"
+#include "session/fit_session.h"
+#include "io/tensor_image.h"
 #include "util/error.h"
 
 namespace refocus {

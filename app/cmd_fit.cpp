@@ -7,7 +7,7 @@
 #include "args.h"
 #include "commands.h"
 #include "edit/atlas_edit.h"
-#include "fit/fit_session.h"
+#include "session/fit_session.h"
 #include "util/error.h"
 
 namespace refocus {

@@ -9,7 +9,7 @@
 #include <random>
 
 #include "edit/atlas_edit.h"
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 #include "io/clip.h"
 #include "io/image_file.h"
 #include "util/error.h"

@@ -14,7 +14,7 @@
 #include "edit/depth.h"
 #include "edit/focus.h"
 #include "edit/recompose.h"
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 #include "io/clip.h"
 #include "io/image_file.h"
 #include "metrics/metrics.h"

@@ -1,4 +1,4 @@
-// Absolute blur at edges (fit/edge_blur.h): a step blurred by the fit's own kernel reads its
+// Absolute blur at edges (radius/edge_blur.h): a step blurred by the fit's own kernel reads its
 // radius at any orientation and sub-pixel position, a sharp step reads 0, and texture that is
 // not an isolated step is not taken for one.
 #include <torch/torch.h>
@@ -8,7 +8,7 @@
 
 #include <cmath>
 
-#include "fit/edge_blur.h"
+#include "radius/edge_blur.h"
 #include "util/error.h"
 
 using namespace refocus;

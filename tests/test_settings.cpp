@@ -8,10 +8,10 @@
 
 #include "fit/fast_model.h"
 #include "fit/fit_engine.h"
-#include "fit/fit_session.h"
+#include "session/fit_session.h"
 #include "fit/presets.h"
 #include "fit/settings.h"
-#include "fit/stack_coc.h"
+#include "radius/stack_coc.h"
 #include "test_util.h"
 #include "util/debug.h"
 #include "util/error.h"

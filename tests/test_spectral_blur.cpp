@@ -1,4 +1,4 @@
-// Absolute blur from tile spectra (fit/spectral_blur.h): textures blurred by the fit's own
+// Absolute blur from tile spectra (radius/spectral_blur.h): textures blurred by the fit's own
 // kernel at 5-10 px read their radius; tiles touching what is not allowed are not read; a radius
 // at the end of the searched range gives no reading.
 #include <torch/torch.h>
@@ -10,7 +10,7 @@
 #include <cstdlib>
 #include <iostream>
 
-#include "fit/spectral_blur.h"
+#include "radius/spectral_blur.h"
 #include "util/error.h"
 
 using namespace refocus;

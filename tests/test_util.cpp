@@ -10,7 +10,7 @@
 
 #include <torch/torch.h>
 
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 #include "io/image_file.h"
 
 namespace refocus::test {

@@ -5,7 +5,7 @@
 #include <algorithm>
 #include <cstdio>
 
-#include "fit/fit_session.h"
+#include "session/fit_session.h"
 #include "studio_context.h"
 #include "util/error.h"
 

@@ -7,7 +7,7 @@
 #include <cmath>
 #include <cstdio>
 
-#include "fit/fit_session.h"
+#include "session/fit_session.h"
 #include "studio_context.h"
 #include "studio_presets.h"
 #include "util/error.h"

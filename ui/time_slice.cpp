@@ -7,7 +7,7 @@
 
 #include "edit/recompose.h"
 #include "fit/fit_engine.h"
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 #include "gl_texture.h"
 #include "studio_context.h"
 

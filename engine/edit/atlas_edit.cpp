@@ -5,7 +5,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 #include "util/error.h"
 
 namespace refocus {

@@ -13,7 +13,7 @@
 #include <deque>
 #include <string>
 
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 #include "io/image.h"
 #include "io/image_file.h"
 #include "project/project.h"

@@ -6,7 +6,7 @@
 #include <torch/torch.h>
 
 #include "fit/fit_engine.h"
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 #include "util/error.h"
 
 namespace refocus {

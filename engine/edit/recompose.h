@@ -3,7 +3,7 @@
 // CPU twin (render/preview.h: layered disk-bokeh depth of field) with the inverse depth of
 // edit/depth.h and a lens from edit/focus.h. Used by `refocus export --what refocus`.
 #include "edit/depth.h"
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 #include "io/image.h"
 #include "render/preview.h"
 

@@ -8,7 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 
-#include "fit/atlas_geometry.h"
+#include "model/atlas_geometry.h"
 #include "fit/losses.h"
 #include "ops/lens_blur.h"
 

@@ -14,7 +14,7 @@
 //     saw at different sub-pixel phases is resolved rather than lost to resampling.
 // Initialisation fuses the input frames into the atlases weighted toward the frames that saw
 // each atlas pixel sharpest (weight (r + ½)^−4), which is where multi-frame deblurring starts.
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 
 namespace refocus {
 

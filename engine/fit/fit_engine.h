@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 #include "fit/presets.h"
 #include "fit/settings.h"
 #include "ops/lens_blur.h"

@@ -10,9 +10,9 @@
 
 #include <nlohmann/json.hpp>
 
-#include "fit/atlas_geometry.h"
-#include "fit/stack_coc.h"
-#include "fit/tensor_image.h"
+#include "model/atlas_geometry.h"
+#include "radius/stack_coc.h"
+#include "io/tensor_image.h"
 #include "io/image_file.h"
 #include "ops/lens_blur.h"
 #include "prepare/prepare.h"

@@ -4,7 +4,7 @@
 #include <memory>
 #include <string>
 
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 #include "fit/settings.h"
 #include "prepare/log.h"
 #include "project/project.h"

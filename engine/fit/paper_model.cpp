@@ -1,6 +1,6 @@
 #include "fit/paper_model.h"
 
-#include "fit/atlas_geometry.h"
+#include "model/atlas_geometry.h"
 
 #include <torch/nn/functional.h>
 #include <torch/optim.h>

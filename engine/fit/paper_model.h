@@ -32,7 +32,7 @@
 #include <torch/nn/modules/linear.h>
 #include <torch/nn/modules/pixelshuffle.h>
 
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 
 namespace refocus {
 

@@ -2,7 +2,7 @@
 // The `perframe` preset as a FitModel: the baseline that deconvolves each frame alone (non-blind
 // MAP deconvolution with a TV prior, perframe.h), one frame a step, with no atlas. Frames not
 // reached keep the input.
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 #include "fit/perframe.h"
 
 namespace refocus {

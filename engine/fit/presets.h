@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 #include "fit/settings.h"
 
 namespace refocus {

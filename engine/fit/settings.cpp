@@ -13,7 +13,7 @@
 #include "fit/fit_setup.h"
 #include "fit/paper_model.h"
 #include "fit/perframe.h"
-#include "fit/stack_coc.h"
+#include "radius/stack_coc.h"
 #include "util/error.h"
 
 namespace refocus {

@@ -4,7 +4,7 @@
 
 #include <chrono>
 
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 #include "util/error.h"
 
 namespace refocus {

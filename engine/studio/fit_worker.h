@@ -15,7 +15,7 @@
 
 #include "edit/depth.h"
 #include "edit/recompose.h"
-#include "fit/fit_session.h"
+#include "session/fit_session.h"
 
 namespace refocus {
 

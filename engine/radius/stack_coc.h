@@ -18,9 +18,9 @@
 
 #include <string>
 
-#include "fit/edge_blur.h"
-#include "fit/spectral_blur.h"
-#include "fit/fit_model.h"
+#include "radius/edge_blur.h"
+#include "radius/spectral_blur.h"
+#include "model/fit_model.h"
 
 namespace refocus {
 

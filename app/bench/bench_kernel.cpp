@@ -13,7 +13,7 @@
 #include "args.h"
 #include "bench_util.h"
 #include "commands.h"
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 #include "io/image_file.h"
 #include "ops/lens_blur.h"
 #include "util/error.h"

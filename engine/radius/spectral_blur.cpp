@@ -1,4 +1,4 @@
-#include "fit/spectral_blur.h"
+#include "radius/spectral_blur.h"
 
 #include <torch/nn/functional.h>
 #include <torch/torch.h>

@@ -5,8 +5,8 @@
 
 #include "args.h"
 #include "commands.h"
-#include "fit/fit_session.h"
-#include "fit/tensor_image.h"
+#include "session/fit_session.h"
+#include "io/tensor_image.h"
 #include "metrics/metrics.h"
 #include "util/error.h"
 

@@ -1,4 +1,4 @@
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 
 #include "util/error.h"
 

@@ -1,4 +1,4 @@
-#include "fit/fit_session.h"
+#include "session/fit_session.h"
 
 #include <torch/torch.h>
 
@@ -8,7 +8,7 @@
 #include "edit/depth.h"
 #include "edit/focus.h"
 #include "edit/recompose.h"
-#include "fit/tensor_image.h"
+#include "io/tensor_image.h"
 #include "io/clip.h"
 #include "io/image_file.h"
 #include "util/error.h"

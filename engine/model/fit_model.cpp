@@ -1,4 +1,4 @@
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 
 #include <torch/torch.h>
 

@@ -1,4 +1,4 @@
-#include "fit/edge_blur.h"
+#include "radius/edge_blur.h"
 
 #include <torch/nn/functional.h>
 #include <torch/torch.h>

@@ -1,9 +1,9 @@
-#include "fit/atlas_geometry.h"
+#include "model/atlas_geometry.h"
 
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
 
-#include "fit/fit_model.h"
+#include "model/fit_model.h"
 #include "util/debug.h"
 
 #include <opencv2/imgproc.hpp>

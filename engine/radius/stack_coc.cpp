@@ -1,4 +1,4 @@
-#include "fit/stack_coc.h"
+#include "radius/stack_coc.h"
 
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
@@ -7,9 +7,9 @@
 #include <cstdio>
 #include <cstdlib>
 
-#include "fit/atlas_geometry.h"
-#include "fit/spectral_blur.h"
-#include "fit/tensor_image.h"
+#include "model/atlas_geometry.h"
+#include "radius/spectral_blur.h"
+#include "io/tensor_image.h"
 #include "ops/lens_blur.h"
 #include "prepare/coc.h"
 
