@@ -27,7 +27,7 @@ struct Field {
     std::variant<double S::*, int S::*, int64_t S::*, bool S::*, std::string S::*> member;
     double lo, hi;                     // numbers: the valid range (inclusive)
     const char* help;
-    std::vector<std::string> choices;  // strings: the valid values
+    std::vector<std::string> choices = {};  // strings: the valid values
     const char* def_text = nullptr;    // the default where the member's initialiser is not it
 };
 

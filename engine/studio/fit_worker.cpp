@@ -185,8 +185,12 @@ void FitWorker::start(const FitSettings& settings, bool resume) {
         const fs::path dir = fit_dir(*m_project);
         const bool can_resume = resume && FitEngine::has_checkpoint(dir);
         FitSettings s = settings;
-        // A fit from scratch takes the default kernel; a resumed one keeps its checkpoint's.
-        if (!can_resume) s.setup.kernel = default_fit_kernel();
+        // A fit from scratch takes the default kernel (or the fit.kernel setting); a resumed one
+        // keeps its checkpoint's.
+        if (!can_resume) {
+            s.setup.kernel = FitSetupOptions{}.kernel;
+            apply_settings(s.setup.settings, s.setup);
+        }
         const bool same_setup = m_engine && s.setup.coc_path == m_settings.setup.coc_path &&
                                 s.setup.mask_path == m_settings.setup.mask_path &&
                                 s.setup.kernel == m_settings.setup.kernel;
