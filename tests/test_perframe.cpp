@@ -6,9 +6,7 @@
 #undef CHECK
 #include <doctest/doctest.h>
 
-#include <chrono>
 #include <cmath>
-#include <cstdio>
 #include <limits>
 #include <random>
 
@@ -149,30 +147,6 @@ constexpr double kSigma = 0.005;
 constexpr int kTestIterations = 50;
 
 }  // namespace
-
-// Objective trace and final PSNR for one setting, for tuning (PF_R, PF_LAMBDA, PF_RHO, PF_CG,
-// PF_IT, PF_RELAX, PF_PRECOND in the environment):  test_perframe --no-skip -tc="*trace*"
-TEST_CASE("perframe: trace" * doctest::skip()) {
-    torch::set_num_threads(2);
-    auto sharp = texture_frame(96, 64);
-    auto radius = torch::full({64, 96}, float(std::getenv("PF_R") ? std::atof(std::getenv("PF_R")) : 3.0));
-    auto g = blur_and_noise(sharp, radius, kSigma);
-    TvDeconvOptions opt;
-    if (auto e = std::getenv("PF_LAMBDA")) opt.lambda = std::atof(e);
-    if (auto e = std::getenv("PF_RHO")) opt.rho = std::atof(e);
-    if (auto e = std::getenv("PF_CG")) opt.cg_iterations = std::atoi(e);
-    if (auto e = std::getenv("PF_IT")) opt.iterations = std::atoi(e);
-    if (auto e = std::getenv("PF_RELAX")) opt.relaxation = std::atof(e);
-    if (auto e = std::getenv("PF_PRECOND")) opt.precondition = std::atoi(e) != 0;
-    opt.tol = 0;
-    TvDeconvStats st;
-    // Report PSNR along the way by re-running with growing iteration caps would cost too much;
-    // print the objective trace instead, and the final PSNR.
-    auto u = deconvolve_tv(g, radius, opt, &st);
-    for (size_t i = 0; i < st.objective.size(); i += std::max<size_t>(1, st.objective.size() / 20))
-        std::printf("it %zu E %.6f dE %.3g\n", i, st.objective[i], i ? st.rel_change[i - 1] : 0.0);
-    std::printf("in %.2f out %.2f  rho %g  %d it %.2f s, %d applies\n", psnr_t(g, sharp), psnr_t(u, sharp), st.rho, st.iterations, st.seconds, st.blur_applications);
-}
 
 TEST_CASE("perframe: constant 3 px disk blur, textured frame, gains PSNR") {
     torch::set_num_threads(2);
@@ -319,47 +293,5 @@ TEST_CASE("perframe: the kernel is a parameter") {
                           << c.stats.iterations << " it");
         // Measured at 96×64: pillbox +5.7 dB, Gaussian (σ = 1.5 px) +3.4 dB.
         CHECK(c.out_psnr >= c.in_psnr + 2.5);
-    }
-}
-
-// Time per 320×180 frame with a 0–8 px ramp (the synth clips' size); for the report.
-TEST_CASE("perframe: 320x180 timing (not run by default)" * doctest::skip()) {
-    torch::set_num_threads(2);
-    auto sharp = texture_frame(320, 180, 21);
-    for (double rmax : {4.0, 8.0}) {
-        auto radius = ramp_radius(320, 180, 0.0, rmax);
-        auto c = run_case(sharp, radius, kSigma);
-        std::printf("320x180 ramp 0-%.0f: %.2f -> %.2f dB, %d it (converged %d), %d blur calls, "
-                    "%.1f s\n",
-                    rmax, c.in_psnr, c.out_psnr, c.stats.iterations, int(c.stats.converged),
-                    c.stats.blur_applications, c.stats.seconds);
-        std::fflush(stdout);
-    }
-}
-
-// The λ / ρ / iteration sweep behind the defaults. Skipped in CI; run with
-//   test_perframe --no-skip -tc="*sweep*"
-TEST_CASE("perframe: lambda sweep (tuning, not run by default)" * doctest::skip()) {
-    torch::set_num_threads(2);
-    const double lambdas[] = {2.5e-5, 5e-5, 1e-4, 2e-4, 4e-4, 8e-4};
-    const double radii[] = {2, 4, 6, 8};
-    const double sigmas[] = {0.002, 0.005, 0.01};
-    for (double sigma : sigmas) {
-        for (double lam : lambdas) {
-            std::printf("sigma %.3f lambda %.1e:", sigma, lam);
-            double mean_gain = 0;
-            for (double rr : radii) {
-                auto sharp = texture_frame(96, 64, 5 + int(rr));
-                auto radius = torch::full({64, 96}, float(rr));
-                TvDeconvOptions opt;
-                opt.lambda = lam;
-                opt.iterations = 300;
-                auto c = run_case(sharp, radius, sigma, opt);
-                std::printf("  r%.0f %.2f->%.2f (%d it)", rr, c.in_psnr, c.out_psnr, c.stats.iterations);
-                mean_gain += (c.out_psnr - c.in_psnr) / 4;
-            }
-            std::printf("  mean gain %.2f\n", mean_gain);
-            std::fflush(stdout);
-        }
     }
 }

@@ -9,8 +9,12 @@
 #include <random>
 
 #include <torch/torch.h>
+#undef CHECK  // glog's (through torch), which aborts: doctest's below
+
+#include <doctest/doctest.h>
 
 #include "model/fit_model.h"
+#include "io/clip.h"
 #include "io/image_file.h"
 
 namespace refocus::test {
@@ -73,6 +77,30 @@ double max_abs_diff(const Image& a, const Image& b) {
     for (size_t i = 0; i < a.size(); ++i)
         m = std::max(m, std::abs(double(a.pixels[i]) - b.pixels[i]));
     return m;
+}
+
+TinyClip make_tiny(const std::string& name, const std::string& scene, const std::string& size) {
+    TinyClip c;
+    c.dir = scratch_dir(name);
+    c.clip = c.dir / "clip";
+    RunResult r = cli("synth --scene " + scene + " -o '" + c.clip.string() +
+                      "' --size " + size + " --frames 8 --seed 3");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    c.project = c.dir / "proj";
+    r = cli("new '" + (c.clip / "input_%04d.png").string() + "' -o '" + c.project.string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    return c;
+}
+
+std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub) {
+    fs::path out = c.dir / sub;
+    RunResult r = cli("export '" + c.project.string() + "' --what sharp --format exr32 --out '" +
+                      out.string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    return read_all_frames((out / "sharp_%04d.exr").string());
 }
 
 std::shared_ptr<FitData> tiny_two_layer_data(unsigned seed, bool with_flow) {

@@ -36,6 +36,17 @@ void write_png_sequence(const fs::path& dir, const std::vector<Image>& frames, b
 // Max absolute difference.
 double max_abs_diff(const Image& a, const Image& b);
 
+// A tiny synth clip with ground truth (8 frames, seed 3) and a project made from its input
+// frames, under scratch_dir(name).
+struct TinyClip {
+    fs::path dir, clip, project;
+};
+TinyClip make_tiny(const std::string& name, const std::string& scene = "tripod",
+                   const std::string& size = "64x36");
+
+// Exports the project's sharp frames as 32-bit EXR under `c.dir / sub` and reads them back.
+std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub);
+
 // A tiny two-layer FitData (4 frames of 40x24 random colour, radius 1 px, a static camera, a
 // 10x8 subject mask at (12, 8)); no flow unless `with_flow` (zero flow, all consistent).
 std::shared_ptr<FitData> tiny_two_layer_data(unsigned seed, bool with_flow = false);

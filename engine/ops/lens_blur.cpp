@@ -24,176 +24,18 @@
 #include <sstream>
 #include <vector>
 
+#include "ops/lens_blur_kernel.h"
 #include "util/error.h"
 
 namespace refocus {
 
 namespace {
 
+using lens_blur_detail::blend;
+using lens_blur_detail::KernelEval;
+using lens_blur_detail::KernelTable;
+
 constexpr int kTile = 32;  // tiles of kTile × kTile source pixels are the unit of work
-
-double disk_tail(double beta) { return std::max(kDiskTail / beta, kDiskTailMin); }
-
-// Smoothstep blend s(r) and ds/dr (header: "Small radii").
-inline void blend(double r, double rmin, double& s, double& ds) {
-    double t = (r - rmin) / kBlendWidth;
-    if (t <= 0) {
-        s = 0;
-        ds = 0;
-    } else if (t >= 1) {
-        s = 1;
-        ds = 0;
-    } else {
-        s = t * t * (3 - 2 * t);
-        ds = 6 * t * (1 - t) / kBlendWidth;
-    }
-}
-
-// Evaluates k̃(ρ; r) and ∂k̃/∂r for one kernel at one radius.
-class KernelEval {
-public:
-    explicit KernelEval(const LensBlurParams& p) : m_p(p) {
-        m_tail = disk_tail(p.beta);
-        // k(−t_e) = E/(E + t_e), E = e^{−β t_e} (underflows harmlessly to 0 for large β).
-        const double E = std::exp(-p.beta * m_tail);
-        m_disk_edge = E / (E + m_tail);
-        m_gauss_edge = std::exp(-0.5 * kGaussianTail * kGaussianTail);
-    }
-    void set_radius(double r) {
-        m_r = r;
-        m_support = lens_blur_support(r, m_p);
-        if (m_p.kernel == BlurKernel::Gaussian) {
-            double sigma = m_p.kappa * r;
-            m_inv_2s2 = 0.5 / (sigma * sigma);
-            m_inv_s2r = 1.0 / (sigma * sigma * r);
-        }
-    }
-    double support() const { return m_support; }
-    inline void eval(double rho2, double& k, double& dk) const {
-        switch (m_p.kernel) {
-            case BlurKernel::Disk: {
-                double d = m_r - std::sqrt(rho2);
-                if (d <= -m_tail) {
-                    k = dk = 0;
-                    return;
-                }
-                // Paper eq. 2 in the form that cannot overflow on either side: for d ≥ 0,
-                // k = 1/(1 − d·e^{−βd}); for d < 0, k = E/(E − d) with E = e^{βd} ≤ 1. The
-                // denominator is > 0 because β > 1/e. ∂k/∂d = E(1 − βd)/(E − d)², ∂d/∂r = 1.
-                double kk, dkk;
-                if (d >= 0) {
-                    double e = std::exp(-m_p.beta * d);
-                    kk = 1.0 / (1.0 - d * e);
-                    dkk = kk * kk * e * (1.0 - m_p.beta * d);
-                } else {
-                    double E = std::exp(m_p.beta * d);
-                    double den = 1.0 / (E - d);
-                    kk = E * den;
-                    dkk = E * (1.0 - m_p.beta * d) * den * den;
-                }
-                k = kk - m_disk_edge;
-                dk = dkk;
-                return;
-            }
-            case BlurKernel::Pillbox: {
-                double a = m_r + 0.5 - std::sqrt(rho2);  // pixel coverage of eq. 1.13's disk
-                if (a <= 0) {
-                    k = dk = 0;
-                } else if (a >= 1) {
-                    k = 1;
-                    dk = 0;
-                } else {
-                    k = a;
-                    dk = 1;
-                }
-                return;
-            }
-            case BlurKernel::Gaussian: {
-                double q = rho2 * m_inv_2s2;  // ρ²/2σ²
-                if (q >= 0.5 * kGaussianTail * kGaussianTail) {
-                    k = dk = 0;
-                    return;
-                }
-                double g = std::exp(-q);  // eq. 1.20 up to the constant that S removes
-                k = g - m_gauss_edge;
-                dk = g * rho2 * m_inv_s2r;  // ∂/∂r of −ρ²/(2κ²r²) is ρ²/(σ²r)
-                return;
-            }
-        }
-        k = dk = 0;
-    }
-
-private:
-    LensBlurParams m_p;
-    double m_tail = 0, m_disk_edge = 0, m_gauss_edge = 0;
-    double m_r = 0, m_support = 0, m_inv_2s2 = 0, m_inv_s2r = 0;
-};
-
-// One pixel's kernel on its own support: rows |y| ≤ R, each row stored over x ∈ [−R, R] so that
-// the tap loops index it directly. Filled from one octant (the kernel depends on ρ only), so
-// a table of N taps costs about N/8 kernel evaluations. With Rep = 3 each entry is repeated
-// three times (k3[3(x+R)+c]) so that the RGB tap loops run over contiguous memory with no
-// stride-3 pattern, which the compiler vectorises. A table is reused while consecutive pixels
-// share the same radius (constant regions of a COC map).
-template <typename T, int Rep>
-struct KernelTable {
-    int R = -1;
-    int stride = 0;  // (2R+1)·Rep
-    double r = -1;
-    bool has_dk = false;
-    std::vector<int> span;  // span[|y|]: taps at |x| ≤ span, −1 for an empty row
-    std::vector<T> k, dk;
-    double sum = 0, dsum = 0;  // over the whole (unclipped) support
-
-    const T* row(int ay) const { return k.data() + static_cast<size_t>(ay) * stride + R * Rep; }
-    const T* drow(int ay) const { return dk.data() + static_cast<size_t>(ay) * stride + R * Rep; }
-
-    void build(const KernelEval& ev, double radius, int max_extent, bool with_dk) {
-        if (radius == r && (has_dk || !with_dk)) return;
-        r = radius;
-        has_dk = with_dk;
-        double rs = ev.support();
-        double rs2 = rs * rs;
-        R = std::min(static_cast<int>(std::floor(rs)), max_extent);
-        stride = (2 * R + 1) * Rep;
-        span.assign(R + 1, -1);
-        size_t n = static_cast<size_t>(R + 1) * stride;
-        if (k.size() < n) k.resize(n);
-        if (with_dk && dk.size() < n) dk.resize(n);
-        for (int y = 0; y <= R; ++y) {
-            double rem = rs2 - double(y) * y;
-            if (rem <= 0) break;
-            int x = std::min(static_cast<int>(std::sqrt(rem)), R);
-            while (x >= 0 && double(x) * x + double(y) * y >= rs2) --x;
-            span[y] = x;
-        }
-        sum = dsum = 0;
-        for (int y = 0; y <= R && span[y] >= y; ++y) {
-            for (int x = y; x <= span[y]; ++x) {
-                double kv, dkv;
-                ev.eval(double(x) * x + double(y) * y, kv, dkv);
-                double mult = x == 0 ? 1 : (y == 0 || x == y) ? 4 : 8;
-                sum += mult * kv;
-                dsum += mult * dkv;
-                set(y, x, kv, dkv, with_dk);
-                set(x, y, kv, dkv, with_dk);
-            }
-        }
-    }
-
-private:
-    inline void set(int ay, int ax, double kv, double dkv, bool with_dk) {
-        size_t base = static_cast<size_t>(ay) * stride + R * Rep;
-        for (int c = 0; c < Rep; ++c) {
-            k[base + ax * Rep + c] = static_cast<T>(kv);
-            k[base - ax * Rep + c] = static_cast<T>(kv);
-            if (with_dk) {
-                dk[base + ax * Rep + c] = static_cast<T>(dkv);
-                dk[base - ax * Rep + c] = static_cast<T>(dkv);
-            }
-        }
-    }
-};
 
 struct Tile {
     int y0, y1, x0, x1;
@@ -613,63 +455,6 @@ public:
 
 }  // namespace
 
-void check_lens_blur_params(const LensBlurParams& p) {
-    const double inv_e = std::exp(-1.0);
-    if (!std::isfinite(p.beta) || !std::isfinite(p.kappa) || !std::isfinite(p.min_radius))
-        throw Error("lens_blur: beta, kappa and min_radius must be finite");
-    if (p.kernel == BlurKernel::Disk && !(p.beta > inv_e)) {
-        std::ostringstream os;
-        os << "lens_blur: disk kernel needs beta > 1/e = 0.367879 (paper eq. 2: at beta <= 1/e "
-              "the kernel e^{bd}/(e^{bd} - d) stops being positive), got beta = "
-           << p.beta;
-        throw Error(os.str());
-    }
-    if (p.kernel == BlurKernel::Gaussian && !(p.kappa > 0))
-        throw Error("lens_blur: Gaussian kernel needs kappa > 0 (sigma = kappa * r), got " +
-                    std::to_string(p.kappa));
-    if (!(p.min_radius >= 0))
-        throw Error("lens_blur: min_radius must be >= 0, got " + std::to_string(p.min_radius));
-    if (p.kernel != BlurKernel::Disk && p.kernel != BlurKernel::Pillbox &&
-        p.kernel != BlurKernel::Gaussian)
-        throw Error("lens_blur: unknown kernel");
-}
-
-double lens_blur_support(double r, const LensBlurParams& p) {
-    if (!(r > p.min_radius)) return 0;
-    switch (p.kernel) {
-        case BlurKernel::Disk: return r + disk_tail(p.beta);
-        case BlurKernel::Pillbox: return r + 0.5;
-        case BlurKernel::Gaussian: return kGaussianTail * p.kappa * r;
-    }
-    return 0;
-}
-
-int64_t lens_blur_tap_count(const torch::Tensor& radius, const LensBlurParams& params) {
-    check_lens_blur_params(params);
-    torch::Tensor rad = radius.to(torch::kDouble).contiguous();
-    const int H = rad.size(0), W = rad.size(1);
-    const double* r = rad.data_ptr<double>();
-    int64_t taps = 0;
-    for (int py = 0; py < H; ++py)
-        for (int px = 0; px < W; ++px) {
-            double rs = lens_blur_support(r[static_cast<size_t>(py) * W + px], params);
-            if (rs <= 0) {
-                ++taps;
-                continue;
-            }
-            const int R = std::min(static_cast<int>(std::floor(rs)), std::max(H, W));
-            for (int y = std::max(-R, -py); y <= std::min(R, H - 1 - py); ++y) {
-                double rem = rs * rs - double(y) * y;
-                if (rem <= 0) continue;
-                int X = std::min(static_cast<int>(std::sqrt(rem)), R);
-                while (X >= 0 && double(X) * X + double(y) * y >= rs * rs) --X;
-                if (X < 0) continue;
-                taps += std::min(X, W - 1 - px) - std::max(-X, -px) + 1;
-            }
-        }
-    return taps;
-}
-
 torch::Tensor lens_blur(const torch::Tensor& image, const torch::Tensor& radius,
                         const LensBlurParams& params) {
     check_lens_blur_params(params);
@@ -695,61 +480,6 @@ torch::Tensor lens_blur_adjoint(const torch::Tensor& grad_out, const torch::Tens
     check_inputs(grad_out, rad, "grad_out");
     check_values(grad_out.contiguous(), rad.contiguous(), "grad_out");
     return run_backward(grad_out, torch::Tensor(), rad, params, true, false).first;
-}
-
-double lens_blur_second_moment(double r, const LensBlurParams& p) {
-    check_lens_blur_params(p);
-    const double rs = lens_blur_support(r, p);
-    if (rs <= 0) return 0;
-    KernelEval ke(p);
-    ke.set_radius(r);
-    const int R = static_cast<int>(std::floor(rs));
-    double sum = 0, m2 = 0;
-    for (int y = -R; y <= R; ++y)
-        for (int x = -R; x <= R; ++x) {
-            const double rho2 = double(x) * x + double(y) * y;
-            if (rho2 >= rs * rs) continue;
-            double k, dk;
-            ke.eval(rho2, k, dk);
-            sum += k;
-            m2 += k * rho2;
-        }
-    double s, ds;  // the small-radius blend with the identity (header)
-    blend(r, p.min_radius, s, ds);
-    return sum > 0 ? s * m2 / sum : 0;
-}
-
-double coc_second_moment(double coc) {
-    if (!(coc > 0)) return 0;
-    // Light through the aperture point a lands between pixel centres and is read there by
-    // bilinear interpolation, spread over the two nearest pixels of each axis with weights
-    // 1 − f and f (f = a − ⌊a⌋): E[ρ²] per axis is a² + f(1 − f). Over the uniform disk, by
-    // symmetry twice the one-axis mean under the chord density sqrt(c² − x²): c²/2 plus up to 1/3
-    // (the tent's own spread; 0 for a disk that stays inside one pixel).
-    const int n = 2000;
-    double sum = 0, wsum = 0;
-    for (int i = 0; i < n; ++i) {
-        const double x = (-1.0 + (2.0 * i + 1.0) / n) * coc;
-        const double w = std::sqrt(std::max(0.0, coc * coc - x * x));
-        const double f = x - std::floor(x);
-        sum += w * (x * x + f * (1.0 - f));
-        wsum += w;
-    }
-    return 2.0 * sum / wsum;
-}
-
-double kernel_radius_for_coc(double coc, const LensBlurParams& p) {
-    if (!(coc > 0)) return 0;
-    // The kernel's moment grows with r; bisect on [0, c + 2] (every kernel here is at least as
-    // wide as its radius's disk up to its 1-3 px soft edge).
-    const double target = coc_second_moment(coc);
-    double lo = 0, hi = coc + 2;
-    if (lens_blur_second_moment(hi, p) < target) return hi;
-    for (int i = 0; i < 40; ++i) {
-        const double mid = 0.5 * (lo + hi);
-        (lens_blur_second_moment(mid, p) < target ? lo : hi) = mid;
-    }
-    return 0.5 * (lo + hi);
 }
 
 }  // namespace refocus

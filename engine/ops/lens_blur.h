@@ -64,9 +64,7 @@ double lens_blur_second_moment(double r, const LensBlurParams& params = {});
 // of radius `coc` px, a physical circle of confusion (a thin lens, the aperture renderer),
 // imaged onto the pixel grid: the disk's light lands between pixel centres and spreads over
 // the nearest pixels (bilinearly, as the aperture renderer samples), which adds up to 1/3 px²
-// (coc_second_moment). Without that term the conversion read pan's wall (circles of 0.5–3.5 px)
-// 10% small: the pillbox reblurred the ground truth to 36.8 dB of the input there, against
-// 50.8 with it (rack frame 4: 37.3 → 51.0; walkout's 7–9 px wall: 56.8 → 56.9). The paper's
+// (coc_second_moment); without that term circles of a few px read about 10% small. The paper's
 // disk (eq. 2, β = 2) has a soft edge 1-3 px wide, so it is wider than the disk of its radius:
 // a 7 px circle of confusion is its r = 6.38.
 double kernel_radius_for_coc(double coc, const LensBlurParams& params = {});

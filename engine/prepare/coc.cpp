@@ -164,7 +164,7 @@ Image estimate_coc_at_edges(const Image& frame, const CocOptions& o, Image& weig
             const double R = g / g1;
             // R ≤ 1 cannot come from a lone blurred edge (reblurring never steepens it): it is
             // a corner, a thin line or a neighbour's interference. Such samples are dropped, not
-            // read as "infinitely blurred" (that made sharp frames read 16 px at 1% of edges).
+            // read as "infinitely blurred" (which would give a sharp frame huge radii at corners).
             if (R <= 1.0 + 1e-6) continue;
             const double r =
                 coc_from_sigma(o.sigma0 / std::sqrt(R * R - 1.0), o.psf, o.sigma0, o.presmooth);

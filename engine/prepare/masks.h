@@ -10,15 +10,14 @@
 //     each registered onto t by the camera homographies, with DIS flow between them at
 //     flow_scale (a low-pass: what a change of focus does to an image is mostly fine detail,
 //     and it barely moves what is left). After registration the background's flow is ~0 and
-//     the subject's is its own motion over k frames: on the synth hunt clip a subject moving
-//     0.7 px per frame stands 3 px out of a wall whose blur changes by 5 px between frames.
+//     the subject's is its own motion over k frames, so that a slow subject stands out of
+//     what a change of focus does to the wall's flow.
 //     Per baseline, the smaller residual of the two partners where the flow passes the
 //     forward-backward test (a background pixel occluded in one partner is not in the other);
 //     then the largest over the baselines (a long one breaks down on a fast subject, a short
 //     one misses a slow one).
-//  2. Adjacent frames (adjacent_residuals, the earlier design): the full-resolution flow
-//     t → t ± 1 against the flow the homography predicts. Alone it drowned slow subjects in
-//     focus-change noise (mean IoU against the true alpha: hunt 0.14, rack 0.08); it still
+//  2. Adjacent frames (adjacent_residuals): the full-resolution flow t → t ± 1 against the
+//     flow the homography predicts. Alone it drowns slow subjects in focus-change noise; it
 //     finds what moves several px per frame, which the long baselines can lose.
 //  3. threshold_masks: step 1 above Otsu's threshold (never below min_residual_px: the
 //     focus-change noise of a locked-off clip stays under it) or step 2 above median + k·MAD
@@ -28,8 +27,7 @@
 //  5. vote_masks: each frame's mask becomes the weighted majority of the clip's non-empty masks
 //     registered onto it, which fills frames where the subject paused against the background
 //     and drops blobs that appear in one frame only; then refined again.
-// Measured with `refocus bench motion` (IoU against the synth clips' true alpha): hunt 0.77,
-// rack 0.60, pan 0.61, walkout 0.84 (adjacent residuals alone: 0.14, 0.08, 0.66, 0.55).
+// `refocus bench motion` scores the masks (IoU against the synth clips' true alpha).
 // Steps run at most work_width wide; the options' px are px of a 320 px wide frame, scaled.
 // Limit: a subject that never moves relative to the background is not separated (it is, for
 // the fit, part of the rigid background).

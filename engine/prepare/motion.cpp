@@ -99,8 +99,7 @@ int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions
     // Corners per cell of a grid, each cell's quality threshold relative to its own best corner:
     // one frame-wide threshold puts nearly every corner on whatever is in focus, and when that is
     // a moving subject in front of a blurred wall, RANSAC's consensus is the subject's motion
-    // (measured on the synth rack clip: the late homographies followed the subject, the wall
-    // drifted 2 px and the subject's own motion read as zero).
+    // (the homographies follow the subject, and its own motion reads as zero).
     std::vector<cv::Point2f> p0;
     const int gx = std::max(1, o.feature_grid_x), gy = std::max(1, o.feature_grid_y);
     const int per_cell = std::max(1, o.max_features / (gx * gy));
@@ -134,14 +133,11 @@ int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions
     // The camera's motion is what the edge of the frame sees. RANSAC's consensus over the whole
     // frame is the motion with the most consistent tracks, and when a subject is sharp and the
     // wall blurred (its tracks noisy as its blur changes) that is the subject's, or a compromise
-    // within the threshold: measured on the synth hunt clip, pairs with focus on the subject
-    // moved 0.6-1.4 px with it (the wall moved 0.1-0.3 px) and the chain drifted 9 px. So the
-    // consensus is taken among the tracks in the outer ring of grid cells first, then refitted
-    // to every track that agrees with it; the whole frame only if the ring has too few. The
-    // ring's threshold is tighter (0.5 px): at 1 px the subject's tracks that reach the ring
-    // (it walks 1.2 px a frame against the wall) still joined the consensus. Chained drift on the
-    // synth clips, ring at 1 / 0.5 / 0.3 px: hunt 2.88 / 1.63 / 3.87, rack 1.19 / 0.45 / 0.51,
-    // pan 0.90 / 0.55 / 0.36, walkout 0.25 / 0.25 / 0.19, tripod 0.68 / 0.33 / 0.39.
+    // within the threshold, and the chained homographies drift with it. So the consensus is
+    // taken among the tracks in the outer ring of grid cells first, then refitted to every track
+    // that agrees with it; the whole frame only if the ring has too few. The ring's threshold is
+    // tighter (ring_ransac_px) so that a walking subject's tracks that reach the ring stay out
+    // of the consensus.
     std::vector<cv::Point2f> rsrc, rdst;
     for (size_t i = 0; i < src.size(); ++i) {
         const int cx = std::clamp(int(dst[i].x * gx / g0.cols), 0, gx - 1);
@@ -156,9 +152,8 @@ int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions
         const double rpx = o.ring_ransac_px;
         // Affine unless the tracks ask for a homography: its two perspective terms, fitted to
         // noisy tracks of a blurred wall bunched in part of the frame, swing the frame's far side
-        // by pixels (synth hunt, chained error over a 5x5 grid of the frame: homography 11.7 px,
-        // affine 4.6 px; pan 1.1 -> 0.3 px). A wide lens panning fast is a true homography: there
-        // it gathers clearly more of the ring's tracks than an affine map does.
+        // by pixels. A wide lens panning fast is a true homography: there it gathers clearly more
+        // of the ring's tracks than an affine map does.
         cv::Mat A = cv::estimateAffine2D(rsrc, rdst, inl, cv::RANSAC, rpx, 4000, 0.999);
         const int nr = int(std::count(inl.begin(), inl.end(), 1));
         std::vector<unsigned char> inl_h;
@@ -194,10 +189,8 @@ int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions
             H = affine_to_homography(A);
             if (int(asrc.size()) < o.min_affine_tracks) {
                 // Few tracks agree (a wall too blurred to track between frames of different
-                // blur): a translation, their median displacement. Synth hunt, chained error
-                // over the frame: affine throughout 4.63 px, translation under 60 / 100 / 150
-                // tracks 4.11 / 3.99 / 3.69 px (pair error max 2.40 -> 0.90); the other clips
-                // have no pair that weak.
+                // blur): a translation, their median displacement, which so few noisy tracks
+                // pin down better than an affine map.
                 std::vector<double> dx, dy;
                 for (size_t i = 0; i < asrc.size(); ++i) {
                     dx.push_back(adst[i].x - asrc[i].x);

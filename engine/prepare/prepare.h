@@ -1,6 +1,6 @@
 #pragma once
-// The preparation stage (DESIGN.md, data flow 2): everything the fit needs from the input clip
-// before it starts, measured once and stored in the project's prep/ folder.
+// The preparation stage: everything the fit needs from the input clip before it starts,
+// measured once and stored in the project's prep/ folder.
 //   flow      forward/backward DIS optical flow with a consistency mask   (prepare/flow.h)
 //   motion    per-frame homography to a reference frame                   (prepare/motion.h)
 //   masks     foreground masks, given or automatic                        (prepare/masks.h)

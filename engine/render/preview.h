@@ -9,10 +9,10 @@
 //   convention (texel centre i of an N-texel axis sits at (2i + 1)/N − 1), i.e. pixel
 //   coordinate x = ((u + 1)·N − 1)/2; bilinear, clamped to the border texels.
 //
-// Depth of field, layered (DESIGN.md "render"): the background is blurred, the foreground's
-// premultiplied colour α·F and α are blurred with the foreground's radius, and composited over
-// it, so an in-focus edge never bleeds onto a blurred layer behind it and a blurred edge reveals
-// the background layer (which holds what is hidden):  out = F̂ + (1 − Â)·B̂.
+// Depth of field, layered: the background is blurred, the foreground's premultiplied colour α·F
+// and α are blurred with the foreground's radius, and composited over it, so an in-focus edge
+// never bleeds onto a blurred layer behind it and a blurred edge reveals the background layer
+// (which holds what is hidden):  out = F̂ + (1 − Â)·B̂.
 //   Radius (seed 001 eq. 1.12, linear in inverse depth): r = aperture·|invdepth − focus|, px,
 //   clamped to [0, max_radius]; a non-finite r (NaN/Inf inverse depth) is 0.
 //   Highlight boost, before the blur: c' = c·(1 + g·max(0, L(c) − T)·clamp(r − ½, 0, 1)),

@@ -1,0 +1,120 @@
+// Atlas geometry: the subject's track (position and size) and the automatic masks cleaned
+// along it.
+#include <torch/torch.h>
+#undef CHECK  // glog's (through torch), which aborts: doctest's below
+
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "model/atlas_geometry.h"
+#include "model/fit_model.h"
+#include "test_util.h"
+
+using namespace refocus;
+using namespace refocus::test;
+
+TEST_CASE("subject track follows the subject's flow where its masks lose part of it") {
+    // A subject moving 1.5 px a frame to the right; frames 2-4 mask only its lower half (a
+    // blurred subject's automatic mask loses its head), so their centroids drop 6 px.
+    const int T = 7, H = 40, W = 64;
+    FitData d;
+    d.frames = T, d.height = H, d.width = W;
+    d.mask = torch::zeros({T, 1, H, W});
+    for (int t = 0; t < T; ++t) {
+        const int x0 = 10 + int(std::lround(1.5 * t));
+        const bool half = t >= 2 && t <= 4;
+        d.mask[t][0].narrow(0, half ? 20 : 8, half ? 12 : 24).narrow(1, x0, 16).fill_(1.0f);
+    }
+    d.flow_fwd = torch::zeros({T - 1, 2, H, W});
+    d.flow_fwd.select(1, 0).fill_(1.5f);  // the subject's motion (the wall's does not matter:
+    d.flow_valid = torch::ones({T - 1, 1, H, W});  // only the mask's core is read)
+    std::vector<double> vx, vy;
+    subject_track(d, vx, vy);
+    for (int t = 0; t < T; ++t) {
+        CHECK(vx[t] - vx[0] == doctest::Approx(1.5 * t).epsilon(1e-6));
+        CHECK(vy[t] - vy[0] == doctest::Approx(0.0).epsilon(1e-6));
+    }
+    // Anchored on the median centroid: the full masks' centre (y = 19.5), not the halves'.
+    CHECK(vy[0] == doctest::Approx(19.5).epsilon(1e-6));
+    // Without flow (or for an earlier build's checkpoint) the smoothed centroids, which follow
+    // the masks down.
+    d.legacy_subject_track = true;
+    subject_track(d, vx, vy);
+    CHECK(vy[3] > 22.0);
+}
+
+TEST_CASE("subject track: a subject walking away is followed in size as well") {
+    // A square subject centred at (40, 30) shrinking by 10% a frame; the flow is the expansion
+    // about that centre (everywhere: only the mask's core is read).
+    const int T = 5, H = 64, W = 80;
+    const double cx = 40, cy = 30, k = 0.9;
+    FitData d;
+    d.frames = T, d.height = H, d.width = W;
+    d.mask = torch::zeros({T, 1, H, W});
+    for (int t = 0; t < T; ++t) {
+        const int half = int(std::lround(24 * std::pow(k, t)));
+        d.mask[t][0].narrow(0, int(cy) - half, 2 * half).narrow(1, int(cx) - half, 2 * half).fill_(1.0f);
+    }
+    auto g = torch::meshgrid({torch::arange(H, torch::kFloat32), torch::arange(W, torch::kFloat32)}, "ij");
+    d.flow_fwd = torch::stack({(k - 1) * (g[1] - cx), (k - 1) * (g[0] - cy)}).unsqueeze(0).repeat({T - 1, 1, 1, 1});
+    d.flow_valid = torch::ones({T - 1, 1, H, W});
+    std::vector<double> vx, vy, sc;
+    subject_track(d, vx, vy, &sc);
+    for (int t = 0; t < T; ++t) {
+        CHECK(sc[t] == doctest::Approx(std::pow(k, t)).epsilon(1e-3));
+        // The subject's centre and a corner land on the same track coordinates in every frame.
+        const double corner = 20 * std::pow(k, t);
+        auto m = subject_to_track(vx[t], vy[t], sc[t]);
+        auto c = torch::matmul(m, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+        auto e = torch::matmul(m, torch::tensor({cx + corner, cy - corner, 1.0}, torch::kFloat64));
+        auto m0 = subject_to_track(vx[0], vy[0], sc[0]);
+        auto c0 = torch::matmul(m0, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+        auto e0 = torch::matmul(m0, torch::tensor({cx + 20, cy - 20, 1.0}, torch::kFloat64));
+        CHECK((c - c0).abs().max().item<double>() < 0.05);
+        CHECK((e - e0).abs().max().item<double>() < 0.05);
+    }
+    // A subject of one size keeps scale 1 (the translation track, bit for bit).
+    d.flow_fwd.zero_();
+    for (int t = 0; t < T; ++t) d.mask[t] = d.mask[0];
+    subject_track(d, vx, vy, &sc);
+    for (double s : sc) CHECK(s == 1.0);
+}
+
+TEST_CASE("automatic masks cleaned along the subject's track: a passing blob is dropped, a lost frame refilled") {
+    // A 12x12 subject moving 2 px a frame to the right over 8 frames of 80x40 (flow to match).
+    // Frame 3's mask also holds a wall tile; frame 5's lost the subject.
+    FitData d;
+    d.frames = 8, d.height = 40, d.width = 80;
+    d.has_subject = true;
+    d.input = torch::zeros({8, 3, 40, 80});
+    d.radius = torch::zeros({8, 40, 80});
+    d.to_ref = torch::eye(3, torch::kFloat64).expand({8, 3, 3}).clone();
+    d.flow_fwd = torch::zeros({7, 2, 40, 80});
+    d.flow_fwd.select(1, 0).fill_(2.0f);
+    d.flow_valid = torch::ones({7, 1, 40, 80});
+    d.mask = torch::zeros({8, 1, 40, 80});
+    for (int t = 0; t < 8; ++t)
+        if (t != 5) d.mask[t][0].narrow(0, 14, 12).narrow(1, 10 + 2 * t, 12).fill_(1.0f);
+    d.mask[3][0].narrow(0, 0, 8).narrow(1, 60, 14).fill_(1.0f);
+    auto want = d.mask.clone();
+    want[3][0].narrow(0, 0, 8).narrow(1, 60, 14).zero_();
+    want[5][0].narrow(0, 14, 12).narrow(1, 20, 12).fill_(1.0f);
+    const std::string line = clean_subject_masks(d);
+    MESSAGE(line);
+    CHECK(line.find("1 part(s)") != std::string::npos);
+    CHECK(line.find("1 frame(s)") != std::string::npos);
+    CHECK((d.mask > 0.5).eq(want > 0.5).all().item<bool>());
+    // A subject leaving the frame is not put back: its mask shrinks as the moved one would.
+    FitData e = d;
+    e.mask = torch::zeros({8, 1, 40, 80});
+    for (int t = 0; t < 8; ++t) {
+        const int x0 = 50 + 4 * t, x1 = std::min(80, x0 + 12);
+        if (x1 > x0) e.mask[t][0].narrow(0, 14, 12).narrow(1, x0, x1 - x0).fill_(1.0f);
+    }
+    e.flow_fwd.select(1, 0).fill_(4.0f);
+    auto before = e.mask.clone();
+    clean_subject_masks(e);
+    CHECK(torch::equal(e.mask > 0.5, before > 0.5));
+}

@@ -1,0 +1,179 @@
+// Checkpoints and projects written by earlier builds load as the build that wrote them; a
+// reopened project rebuilds the model its fit trained.
+#include <nlohmann/json.hpp>
+#include <torch/torch.h>
+#undef CHECK  // glog's (through torch), which aborts: doctest's below
+
+#include <doctest/doctest.h>
+
+#include <cstdlib>
+
+#include "fit/fit_engine.h"
+#include "session/fit_session.h"
+#include "fit/fit_setup.h"
+#include "project/project.h"
+#include "util/error.h"
+#include "test_util.h"
+
+using namespace refocus;
+using namespace refocus::test;
+
+// A fast fit of tiny_two_layer_data(seed) with a budget of `iters`, stepped `steps` times and
+// checkpointed in the scratch directory `name`.
+struct SteppedFit {
+    std::shared_ptr<FitData> data;
+    FitOptions opts;
+    std::unique_ptr<FitEngine> engine;
+    fs::path ck;
+};
+SteppedFit stepped_fit(unsigned seed, int64_t iters, int steps, const std::string& name) {
+    SteppedFit f;
+    f.data = tiny_two_layer_data(seed);
+    f.opts.preset = "fast";
+    f.opts.iters = iters;
+    f.engine = std::make_unique<FitEngine>(f.data, f.opts);
+    for (int i = 0; i < steps; ++i) f.engine->step();
+    f.ck = scratch_dir(name);
+    f.engine->save_checkpoint(f.ck);
+    return f;
+}
+
+TEST_CASE("a checkpoint without the shared matte or the track's kind loads as the build that wrote it") {
+    SteppedFit f = stepped_fit(5, 4, 2, "fit_old_checkpoint");
+    auto& [data, o, engine, ck] = f;
+    FitEngine& a = *engine;
+    // As an earlier build wrote it: no "subject_track" field.
+    auto j = nlohmann::json::parse(read_text_file(ck / "checkpoint.json"));
+    CHECK(j.at("subject_track") == "flow-v2");
+    j.erase("subject_track");
+    write_file_atomic(ck / "checkpoint.json", j.dump());
+    auto data_b = std::make_shared<FitData>(*data);
+    FitEngine b(data_b, o);
+    b.load_checkpoint(ck);
+    CHECK(b.data().legacy_subject_track);
+    // (Without flow both tracks are the masks' centroids, so the tensors fit either way.)
+    CHECK(torch::equal(a.render_frame(1).sharp, b.render_frame(1).sharp));
+    // An earlier build's state lacks the shared matte: its per-frame matte is all of alpha.
+    auto state = a.model().state();
+    auto logits = state.at("alpha_logit").clone();
+    state.erase("alpha_atlas");
+    b.model().load_state(state);
+    auto alpha = b.render_frame(2).alpha;
+    auto want = torch::sigmoid(torch::nn::functional::interpolate(
+        logits.narrow(0, 2, 1), torch::nn::functional::InterpolateFuncOptions()
+                                    .size(std::vector<int64_t>{24, 40})
+                                    .mode(torch::kBilinear)
+                                    .align_corners(false)));
+    CHECK(torch::allclose(alpha, want, 1e-5, 1e-5));
+}
+
+TEST_CASE("the fit's kernel: new fits take the pillbox, projects and checkpoints of earlier builds keep the disk") {
+    // A checkpoint names its kernel; one without the field was fitted with the paper's disk.
+    SteppedFit f = stepped_fit(6, 4, 2, "fit_kernel_checkpoint");
+    auto j = nlohmann::json::parse(read_text_file(f.ck / "checkpoint.json"));
+    CHECK(j.at("kernel") == "disk");  // tiny_two_layer_data keeps FitData's default
+    j.erase("kernel");
+    write_file_atomic(f.ck / "checkpoint.json", j.dump());
+    {
+        FitEngine same(std::make_shared<FitData>(*f.data), f.opts);
+        CHECK_NOTHROW(same.load_checkpoint(f.ck));
+        CHECK(torch::equal(same.render_frame(1).sharp, f.engine->render_frame(1).sharp));
+    }
+    auto pillbox = std::make_shared<FitData>(*f.data);
+    pillbox->blur = fit_kernel_params("pillbox");
+    FitEngine other(pillbox, f.opts);
+    try {
+        other.load_checkpoint(f.ck);
+        FAIL("a disk checkpoint loaded into a pillbox fit");
+    } catch (const Error& e) {
+        const std::string m = e.what();
+        CHECK(m.find("checkpoint.json") != std::string::npos);
+        CHECK(m.find("'kernel' is \"disk\"") != std::string::npos);
+        CHECK(m.find("pillbox") != std::string::npos);
+    }
+    CHECK_THROWS_WITH_AS(fit_kernel_params("gauss"), doctest::Contains("unknown kernel 'gauss'"), Error);
+    CHECK(fit_kernel_params("pillbox").kernel == BlurKernel::Pillbox);
+    CHECK(fit_kernel_params("disk").kernel == BlurKernel::Disk);
+
+    // Settings: fresh ones take the pillbox; a project's "fit" section without a kernel (an
+    // earlier build's) reads as the disk; what is written is read back.
+    CHECK(FitSettings{}.setup.kernel == "pillbox");
+    TinyClip c = make_tiny("fit_kernel_settings");
+    Project p = Project::load(c.project);
+    FitSettings s;
+    s.fit.iters = 3;
+    s.setup.kernel = "pillbox";
+    write_fit_settings(p, s, nullptr);
+    CHECK(read_fit_settings(Project::load(c.project)).setup.kernel == "pillbox");
+    auto pj = nlohmann::json::parse(read_text_file(p.project_file()));
+    pj.at("fit").erase("kernel");
+    write_file_atomic(p.project_file(), pj.dump());
+    CHECK(read_fit_settings(Project::load(c.project)).setup.kernel == "disk");
+    pj.at("fit")["kernel"] = "bokeh";
+    write_file_atomic(p.project_file(), pj.dump());
+    CHECK_THROWS_WITH_AS(read_fit_settings(Project::load(c.project)),
+                         doctest::Contains("project.json: malformed 'fit' section: fit: unknown kernel 'bokeh'"), Error);
+    PrepareLog log;
+    FitSetupOptions so;
+    so.kernel = "disk";
+    CHECK(build_fit_data(Project::load(c.project), so, log)->blur.kernel == BlurKernel::Disk);
+    so.kernel = "pillbox";
+    CHECK(build_fit_data(Project::load(c.project), so, log)->blur.kernel == BlurKernel::Pillbox);
+}
+
+TEST_CASE("a reopened project rebuilds the model its fit trained: the masks are used as stored") {
+    // The subject's track and atlas box come from the masks; the fit that prepared them and a
+    // later export (which reads them back from 8-bit PNG) must agree to the pixel.
+    TinyClip c = make_tiny("fit_reopen_masks", "hunt", "160x90");
+    Project p = Project::load(c.project);
+    PrepareLog log;
+    auto fresh = build_fit_data(p, {}, log);
+    auto reused = build_fit_data(p, {}, log);
+    REQUIRE(fresh->has_subject == reused->has_subject);
+    MESSAGE("tiny hunt clip: " << std::string(fresh->has_subject ? "two layers" : "one layer"));
+    if (fresh->has_subject) CHECK(torch::equal(fresh->mask, reused->mask));
+    auto a = make_model("fast", *fresh, 1), b = make_model("fast", *reused, 1);
+    CHECK(a->atlas_bg().sizes() == b->atlas_bg().sizes());
+    if (fresh->has_subject) {
+        CHECK(a->atlas_fg().sizes() == b->atlas_fg().sizes());
+        CHECK(torch::equal(a->state().at("alpha_atlas"), b->state().at("alpha_atlas")));
+    }
+}
+
+TEST_CASE("a checkpoint keeps its atlases' geometry: a build that would place them otherwise renders what was trained") {
+    SteppedFit f = stepped_fit(7, 6, 3, "fit_geometry_checkpoint");
+    auto& [data, o, engine, ck] = f;
+    FitEngine& a = *engine;
+    // The same clip whose masks now say the subject is wider and lower: this build computes
+    // another foreground box and track for it.
+    auto data_b = std::make_shared<FitData>(*data);
+    data_b->mask = torch::zeros_like(data->mask);
+    data_b->mask.narrow(2, 11, 10).narrow(3, 9, 16).fill_(1.0f);
+    FitEngine b(data_b, o);
+    REQUIRE_FALSE(b.model().atlas_fg().sizes() == a.model().atlas_fg().sizes());
+    b.load_checkpoint(ck);
+    CHECK(b.model().atlas_fg().sizes() == a.model().atlas_fg().sizes());
+    CHECK(torch::equal(a.render_frame(2).sharp, b.render_frame(2).sharp));
+    CHECK(torch::equal(a.render_frame(2).alpha, b.render_frame(2).alpha));
+    // Training goes on from there (the optimiser follows the adopted tensors; its masks differ,
+    // so its bootstrap term does too).
+    b.step();
+    CHECK(std::isfinite(b.snapshot().loss));
+    CHECK(b.model().atlas_fg().sizes() == a.model().atlas_fg().sizes());
+    // A checkpoint whose track is "flow" (masks as stored, no cleaning) rebuilds from them.
+    auto j = nlohmann::json::parse(read_text_file(ck / "checkpoint.json"));
+    j["subject_track"] = "flow";
+    write_file_atomic(ck / "checkpoint.json", j.dump());
+    auto data_c = std::make_shared<FitData>(*data_b);
+    data_c->mask_as_stored = data->mask.clone();
+    FitEngine c(data_c, o);
+    c.load_checkpoint(ck);
+    CHECK(c.data().legacy_track_gaps);
+    CHECK_FALSE(c.data().legacy_subject_track);
+    CHECK(torch::equal(c.data().mask, data->mask));
+    CHECK(torch::equal(a.render_frame(2).sharp, c.render_frame(2).sharp));
+    // A geometry that does not fit the clip is refused with the tensor named.
+    auto state = a.model().state();
+    state["fg_to_atlas"] = torch::eye(3).expand({2, 3, 3}).clone();
+    CHECK_THROWS_WITH_AS(b.model().load_state(state), doctest::Contains("fg atlas"), Error);
+}
