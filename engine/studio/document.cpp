@@ -8,6 +8,7 @@
 #include "util/error.h"
 #include "util/fs.h"
 #include "util/json_file.h"
+#include "util/lock.h"
 
 namespace refocus {
 
@@ -52,6 +53,8 @@ void StudioDoc::close() { *this = StudioDoc{}; }
 
 void StudioDoc::save() {
     if (!m_project) throw Error("no project is open");
+    // One writer per project: a CLI fit or atlas import running on it refuses this save.
+    const auto lock = ProjectLock::acquire(m_project->dir, "refocus studio (save)");
     write_work(*m_project);
     discard_autosave();
     m_dirty = false;
