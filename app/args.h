@@ -57,7 +57,7 @@ public:
     }
     int get_int(const std::string& k, int def) const {
         double v = get_double(k, def);
-        if (v != static_cast<int>(v))
+        if (!(v >= -2147483648.0 && v <= 2147483647.0) || v != static_cast<int>(v))
             throw std::runtime_error("option --" + k + " needs an integer (got '" + get(k) + "')");
         return static_cast<int>(v);
     }

@@ -8,6 +8,7 @@
 #include "session/fit_session.h"
 #include "io/tensor_image.h"
 #include "util/error.h"
+#include "util/lock.h"
 
 namespace refocus {
 
@@ -21,6 +22,7 @@ int cmd_atlas(int argc, char** argv) {
     if (layer != "bg" && layer != "fg" && !(layer == "all" && a.has("clear")))
         throw Error(layer.empty() ? "--import needs --layer bg|fg" : "--layer must be bg or fg");
     Project project = Project::load(a.positional()[0]);
+    const auto lock = ProjectLock::acquire(project.dir, "refocus atlas");
     ProjectEdits edits = ProjectEdits::load(project);
 
     if (a.has("clear")) {

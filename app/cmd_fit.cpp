@@ -9,6 +9,8 @@
 #include "edit/atlas_edit.h"
 #include "session/fit_session.h"
 #include "util/error.h"
+#include "util/lock.h"
+#include "util/validate.h"
 
 namespace refocus {
 
@@ -70,6 +72,7 @@ int cmd_fit(int argc, char** argv) {
                     "] [--minutes M | --iters N] [--coc <pattern>] [--mask <pattern>] [--seed S] "
                     "[--batch N] [--set name=value]... [--resume] | refocus fit --list-settings");
     Project project = Project::load(a.positional()[0]);
+    const auto lock = ProjectLock::acquire(project.dir, "refocus fit");
     FitSettings s = read_fit_settings(project);
     const bool resume = a.has("resume");
     // A new fit keeps the project's settings (a resumed one must: its checkpoint was trained
@@ -81,14 +84,19 @@ int cmd_fit(int argc, char** argv) {
     s.fit.preset = a.get("preset", s.fit.preset);
     find_preset(s.fit.preset);
     if (a.has("minutes") || a.has("iters")) {
-        s.fit.minutes = a.get_double("minutes", 0.0);
-        s.fit.iters = a.get_int("iters", 0);
+        s.fit.minutes = a.has("minutes") ? checked_range("--minutes", a.get_double("minutes", 0), 0,
+                                                         kMaxFitMinutes, true)
+                                         : 0.0;
+        s.fit.iters =
+            a.has("iters") ? checked_int("--iters", a.get_double("iters", 0), 1, kMaxFitIters) : 0;
     }
     if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.minutes = 5.0;
     if (s.fit.minutes < 0 || s.fit.iters < 0) throw Error("--minutes and --iters must be positive");
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", static_cast<int>(s.fit.seed)));
     if (a.has("batch")) s.fit.batch = checked_batch_arg(a.get_int("batch", 0));  // frames per step; left out: the model's choice
-    if (a.has("checkpoint-seconds")) s.fit.checkpoint_seconds = a.get_double("checkpoint-seconds", 60.0);
+    if (a.has("checkpoint-seconds"))
+        s.fit.checkpoint_seconds =
+            checked_range("--checkpoint-seconds", a.get_double("checkpoint-seconds", 60.0), 0, 1e6);
     if (a.has("coc")) s.setup.coc_path = a.get("coc");
     if (a.has("mask")) s.setup.mask_path = a.get("mask");
     s.setup.force_prepare = a.has("reprepare");

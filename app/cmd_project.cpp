@@ -1,6 +1,7 @@
 // refocus new / refocus info
 #include <unistd.h>
 
+#include <csignal>
 #include <cstdio>
 
 #include "args.h"
@@ -8,12 +9,17 @@
 #include "io/clip.h"
 #include "project/project.h"
 #include "util/error.h"
+#include "util/validate.h"
 
 namespace refocus {
 
 namespace {
 
+volatile std::sig_atomic_t g_interrupted = 0;
+
 void print_progress(int i, int n) {
+    // Thrown from here, the ingest removes its temporary folder: no partial project.
+    if (g_interrupted) throw Error("interrupted: no project was created");
     if (isatty(fileno(stderr))) {
         std::fprintf(stderr, "\r  ingest %d/%d", i, n);
         if (i == n) std::fprintf(stderr, "\n");
@@ -24,8 +30,7 @@ void print_progress(int i, int n) {
 
 ClipReadOptions read_options(const Args& a) {
     ClipReadOptions o;
-    o.default_fps = a.get_double("fps", 24.0);
-    if (!(o.default_fps > 0)) throw Error("--fps must be positive");
+    o.default_fps = checked_range("--fps", a.get_double("fps", 24.0), 0.0, 1000.0, true);
     std::string nf = a.get("nonfinite", "reject");
     if (nf == "reject") o.nonfinite = NonFinitePolicy::Reject;
     else if (nf == "clean") o.nonfinite = NonFinitePolicy::Clean;
@@ -41,6 +46,8 @@ int cmd_new(int argc, char** argv) {
     if (a.positional().size() != 1 || !a.has("out"))
         throw Error("usage: refocus new <clip> -o <project-dir>");
     const std::string clip = a.positional()[0];
+    std::signal(SIGINT, [](int) { g_interrupted = 1; });
+    std::signal(SIGTERM, [](int) { g_interrupted = 1; });
     Project p = create_project(clip, a.get("out"), read_options(a), print_progress);
     std::printf("created project %s: %dx%d, %d frames at %.3f fps from %s\n",
                 p.project_file().string().c_str(), p.width, p.height, p.frames, p.fps,

@@ -1,6 +1,7 @@
 // refocus synth: procedural misfocused clips with exact ground truth (engine/synth/synth.h).
 #include <algorithm>
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <string>
 
@@ -9,10 +10,14 @@
 #include "io/image_file.h"
 #include "synth/synth.h"
 #include "util/error.h"
+#include "util/fs.h"
+#include "util/validate.h"
 
 namespace refocus {
 
 namespace {
+
+volatile std::sig_atomic_t g_interrupted = 0;
 
 void parse_size(const std::string& s, int& w, int& h) {
     const auto x = s.find('x');
@@ -50,7 +55,7 @@ int cmd_synth(int argc, char** argv) {
     const int seed = args.get_int("seed", 1);
     if (seed < 0) throw Error("option --seed needs an integer >= 0");
     opts.seed = static_cast<uint32_t>(seed);
-    opts.fps = args.get_double("fps", opts.fps);
+    opts.fps = checked_range("--fps", args.get_double("fps", opts.fps), 0.0, 1000.0, true);
     if (args.has("blades")) {
         opts.shape = ApertureShape::Blades;
         opts.blades = args.get_int("blades", 6);
@@ -59,13 +64,33 @@ int cmd_synth(int argc, char** argv) {
     const std::string out = args.get("out");
     if (out.empty()) throw Error("synth needs an output folder: -o DIR");
     const bool quiet = args.has("quiet");
+    std::signal(SIGINT, [](int) { g_interrupted = 1; });
+    std::signal(SIGTERM, [](int) { g_interrupted = 1; });
 
     const auto t0 = std::chrono::steady_clock::now();
     SynthClip probe(opts);  // validates the options before any file is written
-    auto files = write_synth_clip(opts, out, [&](int t) {
-        if (!quiet)
-            std::fprintf(stderr, "\rsynth %s: frame %d/%d", scene.c_str(), t + 1, opts.frames);
-    });
+    // Rendered into a temporary folder and moved into place complete: a failed or interrupted
+    // run leaves the output folder as it was.
+    if (fs::exists(out) && !fs::is_directory(out))
+        throw Error(file_error(out, "exists and is not a folder"));
+    const fs::path tmp = make_temp_dir_beside(fs::absolute(out).lexically_normal());
+    std::vector<std::string> files;
+    try {
+        files = write_synth_clip(opts, tmp.string(), [&](int t) {
+            if (g_interrupted) throw Error("interrupted: " + out + " was left as it was");
+            if (!quiet)
+                std::fprintf(stderr, "\rsynth %s: frame %d/%d", scene.c_str(), t + 1, opts.frames);
+        });
+        publish_dir(tmp, out, {"clip.json"});
+    } catch (const Error& e) {
+        std::error_code ec;
+        fs::remove_all(tmp, ec);
+        // Name the files the user asked for, not the temporary ones.
+        std::string m = e.what();
+        for (size_t at; (at = m.find(tmp.string())) != std::string::npos;)
+            m.replace(at, tmp.string().size(), out);
+        throw Error(m);
+    }
     const double secs =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (!quiet) std::fprintf(stderr, "\n");

@@ -10,6 +10,7 @@
 #include "commands.h"
 #include "fit/presets.h"
 #include "util/debug.h"
+#include "util/json_file.h"
 #include "util/threads.h"
 
 namespace {
@@ -107,7 +108,13 @@ int main(int argc, char** argv) {
             refocus::init_threads();
             return c.run(argc, argv);
         } catch (const std::exception& e) {
-            std::fprintf(stderr, "refocus %s: error: %s\n", c.name, e.what());
+            // One line: library errors (LibTorch's c10::Error) append a stack trace after it.
+            std::string what = e.what();
+            what = what.substr(0, what.find('\n'));
+            if (what.rfind("[json.exception.", 0) == 0)
+                what = "malformed JSON: " + refocus::json_error_text(e);
+            if (what.empty()) what = "unexpected failure";
+            std::fprintf(stderr, "refocus %s: error: %s\n", c.name, what.c_str());
             return 1;
         }
     }

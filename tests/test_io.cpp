@@ -301,10 +301,11 @@ TEST_CASE("bad input: one line naming the file and the problem, non-zero exit") 
 
     SUBCASE("NaN/Inf in EXR: rejected by default, cleaned on request") {
         fs::create_directories(dir / "nan");
-        std::vector<float> px(8 * 8 * 3, 0.25f);
-        px[3 * (2 * 8 + 5) + 1] = std::numeric_limits<float>::quiet_NaN();  // pixel (5,2)
+        // 16x16: the smallest clip a project takes.
+        std::vector<float> px(16 * 16 * 3, 0.25f);
+        px[3 * (2 * 16 + 5) + 1] = std::numeric_limits<float>::quiet_NaN();  // pixel (5,2)
         px[10] = std::numeric_limits<float>::infinity();
-        write_raw_oiio((dir / "nan" / "f_0000.exr").string(), 8, 8, 3, px);
+        write_raw_oiio((dir / "nan" / "f_0000.exr").string(), 16, 16, 3, px);
         RunResult r = cli("new '" + (dir / "nan").string() + "' -o '" + (dir / "p1").string() + "'");
         INFO(r.output);
         CHECK(r.code != 0);
@@ -324,4 +325,38 @@ TEST_CASE("bad input: one line naming the file and the problem, non-zero exit") 
         std::ofstream((dir / "junk" / "f_0000.png").string()) << "not a png at all";
         expect_cli_error((dir / "junk").string(), "f_0000.png", "cannot open image");
     }
+}
+
+TEST_CASE("frame patterns: one %d or %0Nd, everything else literal") {
+    CHECK(format_pattern("frame_%04d.exr", 7) == "frame_0007.exr");
+    CHECK(format_pattern("f%d.png", 12345) == "f12345.png");
+    CHECK(format_pattern("100%%_%03d.png", 5) == "100%_005.png");
+    CHECK(format_pattern("a_%010d", 3) == "a_0000000003");
+    for (const char* bad : {"f_%n.exr", "%hhn", "%s%s%s%s", "f_%99999d.exr", "f_%011d.png",
+                            "f_%d_%d.png", "frame.png", "f_%5d.png", "f_%", "f_%x.png"}) {
+        INFO(bad);
+        CHECK_THROWS_AS(format_pattern(bad, 1), Error);
+        CHECK(!frame_pattern_problem(bad).empty());
+    }
+    try {
+        parse_frame_pattern("f_%n.exr", "project.json");
+        FAIL("accepted");
+    } catch (const Error& e) {
+        CHECK(std::string(e.what()).rfind("project.json: bad frame pattern 'f_%n.exr'", 0) == 0);
+    }
+}
+
+TEST_CASE("an mp4 writer spawns ffmpeg without a shell and checks its output") {
+    fs::path dir = scratch_dir("io_mp4_checked");
+    const std::string name = (dir / "a 'b' $(touch X) ;c.mp4").string();
+    ClipWriter w(name, "v", ClipFormat::Mp4);
+    for (int i = 0; i < 3; ++i) w.write(pattern_frame(32, 16, i));
+    auto files = w.finish();
+    REQUIRE(files.size() == 1);
+    CHECK(files[0] == name);
+    CHECK(mp4_has_moov(name));
+    CHECK(!fs::exists(dir / "X"));
+    CHECK(!fs::exists("X"));
+    std::ofstream((dir / "junk.mp4").string()) << "mdat and no header";
+    CHECK(!mp4_has_moov((dir / "junk.mp4").string()));
 }

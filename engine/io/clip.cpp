@@ -1,8 +1,10 @@
 #include "io/clip.h"
 
 #include <OpenImageIO/imageio.h>
+#include <fcntl.h>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
@@ -99,22 +101,38 @@ private:
 };
 
 // ---------------------------------------------------------------- sequences
-// Turns a printf pattern "dir/frame_%04d.exr" into (dir, regex over file names).
+// Turns a frame pattern "dir/frame_%04d.exr" into (dir, regex over file names). Only the file
+// name may hold the frame number.
 std::pair<fs::path, std::regex> pattern_regex(const std::string& pattern) {
     fs::path p(pattern);
-    std::string name = p.filename().string();
-    std::smatch m;
-    static const std::regex conv("%(0?)(\\d*)d");
-    if (!std::regex_search(name, m, conv))
-        throw Error(file_error(pattern, "pattern needs one %d or %0Nd"));
+    if (p.parent_path().string().find('%') != std::string::npos)
+        throw Error(
+            file_error(pattern, "the frame number (%d) must be in the file name, not the folder"));
+    const FramePattern fp = parse_frame_pattern(p.filename().string(), pattern);
     auto escape = [](const std::string& s) {
         static const std::regex special(R"([.^$|()\[\]{}*+?\\])");
         return std::regex_replace(s, special, R"(\$&)");
     };
-    std::string width = m[2].str();
-    std::string digits = width.empty() ? "(\\d+)" : "(\\d{" + width + ",})";
-    std::string re = "^" + escape(m.prefix().str()) + digits + escape(m.suffix().str()) + "$";
+    std::string digits = fp.width == 0 ? "(\\d+)" : "(\\d{" + std::to_string(fp.width) + ",})";
+    std::string re = "^" + escape(fp.prefix) + digits + escape(fp.suffix) + "$";
     return {p.parent_path(), std::regex(re)};
+}
+
+// Frame numbers must run without gaps or repeats ("f_3.png" and "f_03.png" are both frame 3).
+void check_numbering(const std::string& path,
+                     const std::vector<std::pair<long, std::string>>& sorted) {
+    for (size_t i = 1; i < sorted.size(); ++i) {
+        if (sorted[i].first == sorted[i - 1].first)
+            throw Error(
+                file_error(path, "two files have frame number " + std::to_string(sorted[i].first) +
+                                     ": " + fs::path(sorted[i - 1].second).filename().string() +
+                                     " and " + fs::path(sorted[i].second).filename().string()));
+        if (sorted[i].first != sorted[i - 1].first + 1)
+            throw Error(file_error(
+                path, "sequence has a gap: frame number " +
+                          std::to_string(sorted[i - 1].first + 1) + " is missing (after " +
+                          fs::path(sorted[i - 1].second).filename().string() + ")"));
+    }
 }
 
 class SequenceReader : public ClipReader {
@@ -124,22 +142,18 @@ public:
         m_info.kind = "sequence";
         m_info.fps = opts.default_fps;
         std::vector<std::pair<long, std::string>> indexed;
-        if (path.find('%') != std::string::npos) {
+        if (path.find('%') != std::string::npos && !fs::exists(path)) {
             auto [dir, re] = pattern_regex(path);
             fs::path d = dir.empty() ? fs::path(".") : dir;
             if (!fs::is_directory(d)) throw Error(file_error(path, "folder does not exist"));
             for (const auto& e : fs::directory_iterator(d)) {
                 std::string fname = e.path().filename().string();
                 std::smatch m;
-                if (std::regex_match(fname, m, re))
+                if (std::regex_match(fname, m, re) && m[1].length() <= 15)
                     indexed.emplace_back(std::stol(m[1].str()), (dir / fname).string());
             }
             std::sort(indexed.begin(), indexed.end());
-            for (size_t i = 1; i < indexed.size(); ++i)
-                if (indexed[i].first != indexed[i - 1].first + 1)
-                    throw Error(file_error(path, "sequence has a gap: frame number " +
-                                                     std::to_string(indexed[i - 1].first + 1) +
-                                                     " is missing"));
+            check_numbering(path, indexed);
         } else if (fs::is_directory(path)) {
             std::map<std::string, int> exts;
             for (const auto& e : fs::directory_iterator(path)) {
@@ -162,6 +176,8 @@ public:
             };
             for (auto& f : indexed) f.first = key(f.second);
             std::sort(indexed.begin(), indexed.end());
+            // Numbered frames (every name has a number) must form one run.
+            if (!indexed.empty() && indexed.front().first >= 0) check_numbering(path, indexed);
         } else {
             indexed.emplace_back(0, path);  // a single image is a one-frame clip
         }
@@ -221,8 +237,8 @@ private:
 }  // namespace
 
 bool is_video_path(const std::string& path) {
-    if (path.find('%') != std::string::npos) return false;
     if (fs::is_directory(path)) return false;
+    if (path.find('%') != std::string::npos && !fs::is_regular_file(path)) return false;
     std::string e = lower(fs::path(path).extension().string());
     return !e.empty() && !is_image_ext(e);
 }
@@ -231,6 +247,16 @@ std::unique_ptr<ClipReader> ClipReader::open(const std::string& path, const Clip
     if (path.empty()) throw Error("no clip path given");
     if (path.find('%') == std::string::npos && !fs::exists(path))
         throw Error(file_error(path, "no such file or folder"));
+    if (path.find('%') != std::string::npos && !fs::exists(path)) {
+        // Not a file: a frame pattern of images, refused here when malformed.
+        const std::string ext = fs::path(path).extension().string();
+        if (!ext.empty() && !is_image_ext(ext))
+            throw Error(file_error(path,
+                                   "no such file (a frame pattern names images: png, jpg, "
+                                   "tif or exr)"));
+        const std::string why = frame_pattern_problem(fs::path(path).filename().string());
+        if (!why.empty()) throw Error(file_error(path, "bad frame pattern: " + why));
+    }
     if (is_video_path(path)) {
         if (fs::file_size(path) == 0) throw Error(file_error(path, "file is empty (zero frames)"));
         return std::make_unique<VideoReader>(path, opts);
@@ -307,18 +333,57 @@ void ClipWriter::open_encoder(int w, int h) {
     // matrix is BT.601 and tagged as such, which is also what OpenCV's reader assumes, so a
     // write-read round trip has no colour shift.
     const bool even = (w % 2 == 0) && (h % 2 == 0);
-    char cmd[1024];
-    std::snprintf(cmd, sizeof cmd,
-                  "ffmpeg -nostdin -hide_banner -loglevel error -y -f rawvideo -pix_fmt rgb24 "
-                  "-s %dx%d -r %.6f -i - -an -c:v libx264 -preset medium -crf %d "
-                  "-vf scale=out_color_matrix=bt601:out_range=tv:flags=accurate_rnd+full_chroma_int -pix_fmt %s "
-                  "-colorspace smpte170m -color_primaries bt709 -color_trc iec61966-2-1 "
-                  "-movflags +faststart -f mp4 '%s' 2>&1",
-                  w, h, m_opts.fps, m_opts.crf, even ? "yuv420p" : "yuv444p", m_tmp.c_str());
-    std::signal(SIGPIPE, SIG_IGN);
-    FILE* pipe = ::popen(cmd, "w");
-    if (!pipe) throw Error(file_error(m_target, "cannot start ffmpeg (is it installed?)"));
-    m_pipe = pipe;
+    char rate[32];
+    std::snprintf(rate, sizeof rate, "%.6f", m_opts.fps);
+    const std::vector<std::string> argv = {
+        "ffmpeg", "-nostdin", "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo",
+        "-pix_fmt", "rgb24", "-s", std::to_string(w) + "x" + std::to_string(h), "-r", rate, "-i",
+        "pipe:0", "-an", "-c:v", "libx264", "-preset", "medium", "-crf", std::to_string(m_opts.crf),
+        "-vf", "scale=out_color_matrix=bt601:out_range=tv:flags=accurate_rnd+full_chroma_int",
+        "-pix_fmt", even ? "yuv420p" : "yuv444p", "-colorspace", "smpte170m", "-color_primaries",
+        "bt709", "-color_trc", "iec61966-2-1", "-movflags", "+faststart", "-f", "mp4",
+        // "file:" keeps a name with ':' or a leading '-' a plain file name.
+        "file:" + m_tmp};
+    try {
+        m_encoder = std::make_unique<Subprocess>(argv);
+    } catch (const Error& e) {
+        throw Error(file_error(m_target, std::string("video encoder: ") + e.what()));
+    }
+}
+
+namespace {
+// The encoder's failure as one line: ffmpeg's last message, or the exit status.
+std::string encoder_failure(Subprocess& enc, int status) {
+    std::string line = enc.last_line();
+    if (line.size() > 300) line = line.substr(0, 300) + "...";
+    return "video encoder (ffmpeg) failed" +
+           (line.empty() ? " with exit status " + std::to_string(status) : ": " + line) +
+           " (the previous file is untouched)";
+}
+}  // namespace
+
+bool mp4_has_moov(const std::string& path) {
+    std::FILE* f = std::fopen(path.c_str(), "rb");
+    if (!f) return false;
+    bool found = false;
+    unsigned char h[16];
+    long long pos = 0;
+    for (int boxes = 0; boxes < 1000 && !found; ++boxes) {
+        if (std::fseek(f, static_cast<long>(pos), SEEK_SET) != 0 || std::fread(h, 1, 8, f) != 8)
+            break;
+        unsigned long long size =
+            (static_cast<unsigned long long>(h[0]) << 24) | (h[1] << 16) | (h[2] << 8) | h[3];
+        if (std::memcmp(h + 4, "moov", 4) == 0) found = true;
+        if (size == 1) {
+            if (std::fread(h + 8, 1, 8, f) != 8) break;
+            size = 0;
+            for (int i = 8; i < 16; ++i) size = (size << 8) | h[i];
+        }
+        if (size < 8) break;  // 0: "to the end of file"
+        pos += static_cast<long long>(size);
+    }
+    std::fclose(f);
+    return found;
 }
 
 void ClipWriter::write(const Image& frame) {
@@ -331,22 +396,40 @@ void ClipWriter::write(const Image& frame) {
     }
     if (m_format == ClipFormat::Mp4) {
         if (frame.channels != 3) throw Error(file_error(m_target, "mp4 frames must be RGB"));
-        if (!m_pipe) open_encoder(frame.width, frame.height);
+        if (!m_encoder) open_encoder(frame.width, frame.height);
         std::vector<unsigned char> rgb(frame.size());
         for (size_t i = 0; i < rgb.size(); ++i)
             rgb[i] = m_opts.srgb_encode
                          ? linear_to_srgb8(frame.pixels[i])
                          : static_cast<unsigned char>(
                                std::lround(std::clamp(frame.pixels[i], 0.0f, 1.0f) * 255.0f));
-        if (std::fwrite(rgb.data(), 1, rgb.size(), static_cast<FILE*>(m_pipe)) != rgb.size()) {
-            std::string why = std::strerror(errno);
+        if (!m_encoder->write_stdin(rgb.data(), rgb.size())) {
+            const int status = m_encoder->wait();
+            const std::string why = encoder_failure(*m_encoder, status);
             cancel();
-            throw Error(file_error(m_target, "video encoder failed: " + why, m_count));
+            throw Error(file_error(m_target, why, m_count));
         }
     } else {
-        std::string path = sequence_path(m_target, m_name, m_count, m_format);
-        write_image_file(path, frame, pixel_format_of(m_format), m_opts.srgb_encode);
-        m_written.push_back(path);
+        if (m_tmp.empty()) {
+            m_tmp = temp_sibling(fs::path(m_target) / ("staging-" + m_name)).string();
+            std::error_code ec;
+            fs::create_directory(m_tmp, ec);
+            if (ec)
+                throw Error(
+                    file_error(m_target, "cannot create a staging folder: " + ec.message()));
+        }
+        const std::string final_path = sequence_path(m_target, m_name, m_count, m_format);
+        const std::string staged = (fs::path(m_tmp) / fs::path(final_path).filename()).string();
+        try {
+            write_image_file(staged, frame, pixel_format_of(m_format), m_opts.srgb_encode);
+        } catch (const Error& e) {
+            // Name the file the user asked for, not the staging one.
+            std::string m = e.what();
+            if (m.rfind(staged, 0) == 0) m = final_path + m.substr(staged.size());
+            cancel();
+            throw Error(m);
+        }
+        m_written.push_back(staged);
     }
     ++m_count;
 }
@@ -354,31 +437,70 @@ void ClipWriter::write(const Image& frame) {
 std::vector<std::string> ClipWriter::finish() {
     if (m_done) return m_written;
     if (m_format == ClipFormat::Mp4) {
-        if (!m_pipe) throw Error(file_error(m_target, "no frames to write"));
-        int status = ::pclose(static_cast<FILE*>(m_pipe));
-        m_pipe = nullptr;
-        if (status != 0) {
-            std::error_code ec;
-            fs::remove(m_tmp, ec);
-            m_done = true;
-            throw Error(file_error(m_target, "video encoder (ffmpeg) failed with status " +
-                                                 std::to_string(status) + " (disk full?)"));
+        if (!m_encoder) throw Error(file_error(m_target, "no frames to write"));
+        const int status = m_encoder->wait();
+        const std::string out = m_encoder->output();
+        std::string why;
+        std::error_code ec;
+        if (status != 0 || out.find("Error writing trailer") != std::string::npos ||
+            out.find("No space left") != std::string::npos)
+            why = encoder_failure(*m_encoder, status);
+        else if (!fs::exists(m_tmp) || fs::file_size(m_tmp, ec) == 0)
+            why = "video encoder (ffmpeg) wrote nothing (the previous file is untouched)";
+        else if (!mp4_has_moov(m_tmp))
+            why =
+                "video encoder (ffmpeg) wrote an incomplete file (no moov atom; disk full?); the "
+                "previous file is untouched";
+        if (why.empty()) {
+            const int fd = ::open(m_tmp.c_str(), O_RDONLY);
+            if (fd < 0 || ::fsync(fd) != 0)
+                why = std::string("cannot sync the video to disk: ") + std::strerror(errno);
+            if (fd >= 0) ::close(fd);
+        }
+        if (!why.empty()) {
+            cancel();
+            throw Error(file_error(m_target, why));
         }
         commit_temp(m_tmp, m_target);
-        m_written.push_back(m_target);
+        m_tmp.clear();
+        m_encoder.reset();
+        m_written = {m_target};
+    } else if (!m_tmp.empty()) {
+        std::vector<std::string> finals;
+        for (int i = 0; i < m_count; ++i) {
+            finals.push_back(sequence_path(m_target, m_name, i, m_format));
+            commit_temp(m_written[i], finals.back());
+        }
+        // Frames of an earlier, longer export under the same name would mix with these.
+        const std::string ext = "." + std::string(extension_of(pixel_format_of(m_format)));
+        const std::regex old(
+            "^" + std::regex_replace(m_name, std::regex(R"([.^$|()\[\]{}*+?\\])"), R"(\$&)") +
+            "_(\\d{4,})" + std::regex_replace(ext, std::regex(R"(\.)"), R"(\.)") + "$");
+        for (const auto& e : fs::directory_iterator(m_target)) {
+            std::smatch m;
+            const std::string fname = e.path().filename().string();
+            if (std::regex_match(fname, m, old) && std::stol(m[1].str()) >= m_count) {
+                std::error_code ec;
+                fs::remove(e.path(), ec);
+            }
+        }
+        std::error_code ec;
+        fs::remove_all(m_tmp, ec);
+        m_tmp.clear();
+        m_written = finals;
     }
     m_done = true;
     return m_written;
 }
 
 void ClipWriter::cancel() {
-    if (m_pipe) {
-        ::pclose(static_cast<FILE*>(m_pipe));
-        m_pipe = nullptr;
+    if (m_encoder) {
+        m_encoder->kill();
+        m_encoder.reset();
     }
     std::error_code ec;
-    if (!m_tmp.empty()) fs::remove(m_tmp, ec);
-    for (const auto& f : m_written) fs::remove(f, ec);
+    if (!m_tmp.empty()) fs::remove_all(m_tmp, ec);
+    m_tmp.clear();
     m_written.clear();
     m_done = true;
 }

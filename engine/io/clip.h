@@ -8,6 +8,7 @@
 
 #include "io/image.h"
 #include "io/image_file.h"
+#include "util/process.h"
 
 namespace refocus {
 
@@ -29,7 +30,12 @@ struct ClipReadOptions {
     double default_fps = 24.0;       // image sequences carry no rate
 };
 
+// A video file by its extension. A file that exists is never read as a frame pattern,
+// whatever '%' its name holds ("100%.mp4").
 bool is_video_path(const std::string& path);
+
+// Does the mp4/mov file at `path` hold a top-level "moov" atom (a complete, playable file)?
+bool mp4_has_moov(const std::string& path);
 
 class ClipReader {
 public:
@@ -61,9 +67,12 @@ struct ClipWriteOptions {
     bool srgb_encode = true;  // false for data passes in integer formats
 };
 
-// Writes frames one at a time. Every sequence frame is written atomically; an mp4 is encoded
-// into a temporary file and renamed into place by finish(). A writer destroyed before finish()
-// removes what it wrote, so an output is complete or absent.
+// Writes frames one at a time. Sequence frames go to a hidden staging folder inside the target
+// and are renamed into place by finish() (frames of an older, longer export with the same name
+// are removed then, so a folder never mixes two exports); an mp4 is encoded by ffmpeg (spawned
+// without a shell) into a temporary file, checked (exit status, trailer errors, a moov atom)
+// and renamed into place by finish(). A writer destroyed before finish() removes what it
+// wrote, so an output is complete or absent and a failed export keeps the previous one.
 class ClipWriter {
 public:
     // `target` is the output folder for sequences, the .mp4 file for mp4.
@@ -88,9 +97,9 @@ private:
     ClipWriteOptions m_opts;
     int m_count = 0;
     int m_width = 0, m_height = 0;
-    std::vector<std::string> m_written;
-    std::string m_tmp;     // mp4 temporary
-    void* m_pipe = nullptr;  // FILE* to ffmpeg
+    std::vector<std::string> m_written;  // sequences: staged files
+    std::string m_tmp;                   // mp4 temporary / sequence staging folder
+    std::unique_ptr<Subprocess> m_encoder;
     bool m_done = false;
 };
 

@@ -1,11 +1,14 @@
 #include "io/image_file.h"
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <fcntl.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstring>
 #include <vector>
 
 #include "util/error.h"
@@ -29,7 +32,10 @@ std::string oiio_error(const std::string& fallback) {
 ImageReadResult read_image_file(const std::string& path, bool decode_srgb,
                                 NonFinitePolicy nonfinite, int frame) {
     if (!fs::exists(path)) throw Error(file_error(path, "no such file", frame));
-    auto in = OIIO::ImageInput::open(path);
+    // Alpha is dropped later, so colour must come as stored, not premultiplied by it.
+    OIIO::ImageSpec config;
+    config.attribute("oiio:UnassociatedAlpha", 1);
+    auto in = OIIO::ImageInput::open(path, &config);
     if (!in) throw Error(file_error(path, "cannot open image: " + oiio_error("unknown format"), frame));
     const OIIO::ImageSpec& spec = in->spec();
     const int nch = spec.nchannels;
@@ -47,10 +53,12 @@ ImageReadResult read_image_file(const std::string& path, bool decode_srgb,
     const bool is_float = fmt.is_floating_point();
     r.format = is_float ? (fmt.size() == 2 ? "half" : "float")
                         : (fmt.size() == 1 ? "uint8" : fmt.size() == 2 ? "uint16" : "uint32");
-    if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::FLOAT, r.image.data())) {
-        throw Error(file_error(path, "cannot read pixels (truncated or corrupt?): " +
-                                         oiio_error("read failed"),
-                               frame));
+    // Some decoders (JPEG) fill a truncated file with grey and only leave an error behind.
+    if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::FLOAT, r.image.data()) || in->has_error()) {
+        std::string why = in->geterror();
+        if (why.empty()) why = oiio_error("read failed");
+        std::replace(why.begin(), why.end(), '\n', ' ');
+        throw Error(file_error(path, "cannot read pixels (truncated or corrupt?): " + why, frame));
     }
     in->close();
 
@@ -142,6 +150,25 @@ void write_image_file(const std::string& path, const Image& img, PixelFormat for
     fs::path tmp = temp_sibling(target);
     auto out = OIIO::ImageOutput::create(tmp.string());
     if (!out) throw Error(file_error(path, "no writer for this format: " + oiio_error("?")));
+    // TIFF is left out: OIIO 2.4's TIFF writer produces a broken file through a proxy.
+    if (format != PixelFormat::Tiff16 && out->supports("ioproxy")) {
+        // Encode in memory, then one checked, atomic file write: every OS error (full disk)
+        // is caught with its reason and the previous file stays.
+        OIIO::Filesystem::IOVecOutput vec;
+        bool ok = out->set_ioproxy(&vec) && out->open(tmp.string(), spec) &&
+                  out->write_image(OIIO::TypeDesc::FLOAT, buf.data());
+        std::string why = ok ? "" : out->geterror();
+        ok = out->close() && ok;
+        if (!ok) {
+            if (why.empty()) why = out->geterror();
+            std::replace(why.begin(), why.end(), '\n', ' ');
+            throw Error(file_error(
+                path, "cannot encode the image: " + (why.empty() ? "unknown error" : why)));
+        }
+        const auto& bytes = vec.buffer();
+        write_file_atomic(target, std::string(bytes.begin(), bytes.end()));
+        return;
+    }
     if (!out->open(tmp.string(), spec)) {
         std::string why = oiio_error("open failed");
         std::error_code ec;
@@ -152,10 +179,11 @@ void write_image_file(const std::string& path, const Image& img, PixelFormat for
     std::string why = ok ? "" : oiio_error("write failed");
     ok = out->close() && ok;
     if (!ok) {
-        if (why.empty()) why = oiio_error("close failed (disk full?)");
+        if (why.empty()) why = oiio_error("");
+        if (why.empty()) why = std::strerror(errno);
         std::error_code ec;
         fs::remove(tmp, ec);
-        throw Error(file_error(path, "write failed: " + why));
+        throw Error(file_error(path, "write failed: " + why + " (the previous file is untouched)"));
     }
     // The data must be on disk before the rename publishes it (a crash leaves old or new).
     const int fd = ::open(tmp.c_str(), O_RDONLY);
@@ -164,7 +192,8 @@ void write_image_file(const std::string& path, const Image& img, PixelFormat for
     if (!synced) {
         std::error_code ec;
         fs::remove(tmp, ec);
-        throw Error(file_error(path, "write failed: cannot sync the file to disk"));
+        throw Error(file_error(path, std::string("write failed: cannot sync the file to disk: ") +
+                                         std::strerror(errno)));
     }
     commit_temp(tmp, target);
 }

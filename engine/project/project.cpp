@@ -1,12 +1,13 @@
 #include "project/project.h"
 
 #include <algorithm>
-#include <mutex>
-
 #include <cmath>
+#include <limits>
+#include <mutex>
 
 #include "io/image_file.h"
 #include "util/error.h"
+#include "util/json_file.h"
 
 namespace refocus {
 
@@ -16,7 +17,21 @@ namespace {
 
 [[noreturn]] void field_error(const std::string& label, const std::string& field,
                               const std::string& problem) {
-    throw Error(file_error(label, "field '" + field + "' " + problem));
+    json_field_error(label, field, problem);
+}
+
+// An integer value as long long; false when it does not fit (huge unsigned values).
+bool as_int64(const json& v, long long& out) {
+    if (v.is_number_unsigned()) {
+        const auto u = v.get<unsigned long long>();
+        if (u > static_cast<unsigned long long>(std::numeric_limits<long long>::max()))
+            return false;
+        out = static_cast<long long>(u);
+        return true;
+    }
+    if (!v.is_number_integer()) return false;
+    out = v.get<long long>();
+    return true;
 }
 
 const json& require(const json& j, const std::string& label, const std::string& key,
@@ -26,23 +41,66 @@ const json& require(const json& j, const std::string& label, const std::string& 
     bool ok = v.type() == type ||
               (type == json::value_t::number_float && v.is_number()) ||
               (type == json::value_t::number_integer && v.is_number_integer());
-    if (!ok) field_error(label, path, std::string("must be ") +
-                                          (type == json::value_t::string ? "a string"
-                                           : type == json::value_t::object ? "an object"
-                                           : type == json::value_t::number_integer
-                                               ? "an integer"
-                                               : "a number") +
-                                          " (got " + v.dump() + ")");
+    if (!ok)
+        field_error(label, path,
+                    std::string("must be ") +
+                        (type == json::value_t::string           ? "a string"
+                         : type == json::value_t::object         ? "an object"
+                         : type == json::value_t::number_integer ? "an integer"
+                                                                 : "a number") +
+                        " (got " + json_brief(v) + ")");
     return v;
 }
 
 int positive_int(const json& j, const std::string& label, const std::string& key,
                  const std::string& path, int max) {
     const json& v = require(j, label, key, json::value_t::number_integer, path);
-    long long x = v.get<long long>();
-    if (x <= 0 || x > max)
-        field_error(label, path, "must be in 1.." + std::to_string(max) + " (got " + v.dump() + ")");
+    long long x = 0;
+    if (!as_int64(v, x) || x <= 0 || x > max)
+        field_error(label, path,
+                    "must be in 1.." + std::to_string(max) + " (got " + json_brief(v) + ")");
     return static_cast<int>(x);
+}
+
+// The "fit" section's budget and settings, checked where they enter (the fit reads them as they
+// are). null minutes/iters (an unbounded budget once written as NaN/Inf) read as "not set".
+void validate_fit_section(Project& p, const std::string& label) {
+    if (!p.sections.contains("fit")) return;
+    json& f = p.sections["fit"];
+    if (!f.is_object()) field_error(label, "fit", "must be an object (got " + json_brief(f) + ")");
+    for (const char* key : {"minutes", "iters"})
+        if (f.contains(key) && f[key].is_null()) f[key] = 0;
+    auto number = [&](const char* key, double lo, double hi) {
+        if (!f.contains(key)) return;
+        const json& v = f[key];
+        const std::string path = std::string("fit.") + key;
+        if (!v.is_number())
+            field_error(label, path, "must be a number (got " + json_brief(v) + ")");
+        const double x = v.get<double>();
+        if (!(std::isfinite(x) && x >= lo && x <= hi))
+            field_error(label, path,
+                        "must be in " + json_brief(json(lo)) + ".." + json_brief(json(hi)) +
+                            " (got " + json_brief(v) + ")");
+    };
+    auto integer = [&](const char* key, long long lo, long long hi) {
+        if (!f.contains(key)) return;
+        const json& v = f[key];
+        long long x = 0;
+        if (!as_int64(v, x) || x < lo || x > hi)
+            field_error(label, std::string("fit.") + key,
+                        "must be an integer in " + std::to_string(lo) + ".." + std::to_string(hi) +
+                            " (got " + json_brief(v) + ")");
+    };
+    auto string = [&](const char* key) {
+        if (f.contains(key) && !f[key].is_string())
+            field_error(label, std::string("fit.") + key,
+                        "must be a string (got " + json_brief(f[key]) + ")");
+    };
+    number("minutes", 0.0, kMaxFitMinutes);
+    integer("iters", 0, kMaxFitIters);
+    integer("batch", 0, 4096);  // 0: the model's choice
+    integer("seed", 0, std::numeric_limits<long long>::max());
+    for (const char* key : {"preset", "coc", "mask", "kernel", "checkpoint"}) string(key);
 }
 
 }  // namespace
@@ -79,20 +137,25 @@ Project Project::from_json(const json& j, const fs::path& dir, const std::string
     if (!j.is_object()) throw Error(file_error(label, "not a JSON object"));
     Project p;
     p.dir = dir;
-    p.version = static_cast<int>(
-        require(j, label, "version", json::value_t::number_integer, "version").get<long long>());
-    if (p.version > kVersion)
+    const json& jv = require(j, label, "version", json::value_t::number_integer, "version");
+    long long version = 0;
+    if (!as_int64(jv, version) || version > kVersion)
         throw Error(file_error(label, "written by a newer Refocus (project version " +
-                                          std::to_string(p.version) + ", this build reads up to " +
-                                          std::to_string(kVersion) + "); update Refocus to open it"));
-    if (p.version < 1) field_error(label, "version", "must be >= 1 (got " + std::to_string(p.version) + ")");
+                                          json_brief(jv) + ", this build reads up to " +
+                                          std::to_string(kVersion) +
+                                          "); update Refocus to open it"));
+    if (version < 1) field_error(label, "version", "must be >= 1 (got " + json_brief(jv) + ")");
+    p.version = static_cast<int>(version);
     p.name = require(j, label, "name", json::value_t::string, "name").get<std::string>();
     const json& src = require(j, label, "source", json::value_t::object, "source");
     p.source = require(src, label, "path", json::value_t::string, "source.path").get<std::string>();
     p.source_kind = require(src, label, "kind", json::value_t::string, "source.kind").get<std::string>();
     if (p.source_kind != "video" && p.source_kind != "sequence")
         field_error(label, "source.kind", "must be \"video\" or \"sequence\" (got \"" + p.source_kind + "\")");
-    p.source_format = src.value("format", "uint8");
+    p.source_format = "uint8";
+    if (src.contains("format"))
+        p.source_format = require(src, label, "format", json::value_t::string, "source.format")
+                              .get<std::string>();
     const json& clip = require(j, label, "clip", json::value_t::object, "clip");
     p.width = positive_int(clip, label, "width", "clip.width", 1 << 15);
     p.height = positive_int(clip, label, "height", "clip.height", 1 << 15);
@@ -104,6 +167,13 @@ Project Project::from_json(const json& j, const fs::path& dir, const std::string
     p.frame_pattern = require(cache, label, "frames", json::value_t::string, "cache.frames").get<std::string>();
     if (fs::path(p.frame_pattern).is_absolute() || p.frame_pattern.find("..") != std::string::npos)
         field_error(label, "cache.frames", "must be a path inside the project folder (got \"" + p.frame_pattern + "\")");
+    if (const std::string why = frame_pattern_problem(p.frame_pattern); !why.empty())
+        field_error(label, "cache.frames", "is not a frame pattern: " + why);
+    // The cache is the frames/ folder: anything else (prep/'s radius maps) is not the clip.
+    if (fs::path(p.frame_pattern).lexically_normal().parent_path() != "frames")
+        field_error(
+            label, "cache.frames",
+            "must name files in the project's frames/ folder (got \"" + p.frame_pattern + "\")");
     if (p.frame_pattern.find('%') == std::string::npos)
         field_error(label, "cache.frames", "must be a pattern with %d (got \"" + p.frame_pattern + "\")");
     for (auto it = j.begin(); it != j.end(); ++it) {
@@ -111,6 +181,7 @@ Project Project::from_json(const json& j, const fs::path& dir, const std::string
         if (std::find(std::begin(known), std::end(known), it.key()) == std::end(known))
             p.sections[it.key()] = it.value();
     }
+    validate_fit_section(p, label);
     return p;
 }
 
@@ -118,19 +189,14 @@ Project Project::load(const fs::path& dir_or_file) {
     fs::path file = dir_or_file;
     if (fs::is_directory(file)) file /= kFileName;
     if (!fs::exists(file)) throw Error(file_error(file.string(), "no such project file"));
-    std::string text = read_text_file(file);
-    json j;
-    try {
-        j = json::parse(text);
-    } catch (const json::parse_error& e) {
-        throw Error(file_error(file.string(), std::string("not valid JSON: ") + e.what()));
-    }
+    const json j = read_json_file(file);
     Project p = from_json(j, file.parent_path(), file.string());
     for (int i : {0, p.frames - 1})
         if (!fs::exists(p.frame_path(i)))
             throw Error(file_error(p.frame_path(i).string(),
-                                   "frame cache file is missing (re-create the project with "
-                                   "'refocus new')",
+                                   "frame cache file is missing (" + file.string() + " lists " +
+                                       std::to_string(p.frames) +
+                                       " frames; re-create the project with 'refocus new')",
                                    i));
     return p;
 }
@@ -142,8 +208,8 @@ void Project::save_merged(const std::vector<std::string>& own) {
     std::lock_guard<std::mutex> lock(mutex);
     if (fs::exists(project_file())) {
         try {
-            const Project disk = from_json(json::parse(read_text_file(project_file())), dir,
-                                           project_file().string());
+            const Project disk =
+                from_json(read_json_file(project_file()), dir, project_file().string());
             for (auto it = disk.sections.begin(); it != disk.sections.end(); ++it)
                 if (std::find(own.begin(), own.end(), it.key()) == own.end()) sections[it.key()] = it.value();
         } catch (const std::exception&) {
@@ -164,11 +230,15 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
     if (fs::exists(dir / Project::kFileName))
         throw Error(file_error((dir / Project::kFileName).string(),
                                "a project already exists here; choose another folder"));
+    if (fs::exists(dir) && !fs::is_directory(dir))
+        throw Error(file_error(dir.string(), "exists and is not a folder"));
     auto reader = ClipReader::open(clip, opts);
     const ClipInfo& info = reader->info();
-    std::error_code ec;
-    fs::create_directories(dir / "frames", ec);
-    if (ec) throw Error(file_error(dir.string(), "cannot create project folder: " + ec.message()));
+    if (info.width < kMinClipSize || info.height < kMinClipSize)
+        throw Error(file_error(
+            clip, "the clip is " + std::to_string(info.width) + "x" + std::to_string(info.height) +
+                      ": too small, Refocus needs at least " + std::to_string(kMinClipSize) + "x" +
+                      std::to_string(kMinClipSize) + " pixels (optical flow)"));
 
     Project p;
     p.dir = dir;
@@ -185,15 +255,38 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
     p.frames = info.frames;
     p.fps = info.fps;
     p.frame_pattern = "frames/frame_%04d.exr";
-    // Float sources keep float precision; 8/16-bit sources fit in half exactly enough.
-    const PixelFormat cache_format =
-        info.source_format == "float" ? PixelFormat::ExrFloat : PixelFormat::ExrHalf;
-    for (int i = 0; i < info.frames; ++i) {
-        Image f = reader->read(i);
-        write_image_file(p.frame_path(i).string(), f, cache_format, false);
-        if (progress) progress(i + 1, info.frames);
+    // Built in a temporary folder and moved into place complete (project.json last): a failed
+    // or interrupted ingest leaves no partial project.
+    const fs::path tmp = make_temp_dir_beside(fs::absolute(dir).lexically_normal());
+    try {
+        Project staged = p;
+        staged.dir = tmp;
+        std::error_code ec;
+        fs::create_directories(tmp / "frames", ec);
+        if (ec)
+            throw Error(file_error(dir.string(), "cannot create project folder: " + ec.message()));
+        // Float sources keep float precision; 8/16-bit sources fit in half exactly enough.
+        const PixelFormat cache_format =
+            info.source_format == "float" ? PixelFormat::ExrFloat : PixelFormat::ExrHalf;
+        for (int i = 0; i < info.frames; ++i) {
+            Image f = reader->read(i);
+            try {
+                write_image_file(staged.frame_path(i).string(), f, cache_format, false);
+            } catch (const Error& e) {
+                std::string m = e.what();
+                const std::string from = staged.frame_path(i).string();
+                if (m.rfind(from, 0) == 0) m = p.frame_path(i).string() + m.substr(from.size());
+                throw Error(m);
+            }
+            if (progress) progress(i + 1, info.frames);
+        }
+        staged.save();
+        publish_dir(tmp, dir, {Project::kFileName});
+    } catch (...) {
+        std::error_code ec;
+        fs::remove_all(tmp, ec);
+        throw;
     }
-    p.save();
     return p;
 }
 

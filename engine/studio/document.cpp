@@ -7,6 +7,8 @@
 
 #include "util/error.h"
 #include "util/fs.h"
+#include "util/json_file.h"
+#include "util/lock.h"
 
 namespace refocus {
 
@@ -51,6 +53,8 @@ void StudioDoc::close() { *this = StudioDoc{}; }
 
 void StudioDoc::save() {
     if (!m_project) throw Error("no project is open");
+    // One writer per project: a CLI fit or atlas import running on it refuses this save.
+    const auto lock = ProjectLock::acquire(m_project->dir, "refocus studio (save)");
     write_work(*m_project);
     discard_autosave();
     m_dirty = false;
@@ -143,12 +147,7 @@ void StudioDoc::restore_autosave() {
     if (!m_project) return;
     const fs::path dir = autosave_dir(m_project->dir);
     const fs::path file = dir / Project::kFileName;
-    json j;
-    try {
-        j = json::parse(read_text_file(file.string()));
-    } catch (const json::exception& e) {
-        throw Error(file_error(file.string(), std::string("unreadable autosave: ") + e.what()));
-    }
+    const json j = read_json_file(file);
     Project saved = Project::from_json(j, m_project->dir, file.string());
     load_work(saved, dir);
     m_newer_autosave = false;
