@@ -282,7 +282,7 @@ TEST_CASE("export round trip: PNG 8, TIFF 16, EXR") {
 
 TEST_CASE("project edits: save/load round trip, size check names the file, no files = no edits") {
     fs::path dir = scratch_dir("atlas_project");
-    write_png_sequence(dir / "clip", {pattern_frame(16, 12, 0), pattern_frame(16, 12, 1)});
+    write_png_sequence(dir / "clip", {pattern_frame(16, 16, 0), pattern_frame(16, 16, 1)});
     Project p = create_project((dir / "clip").string(), dir / "proj", {});
     ProjectEdits none = ProjectEdits::load(p);
     CHECK_FALSE(none.has_edits());

@@ -68,11 +68,13 @@ TEST_CASE("a checkpoint without the shared matte or the track's kind loads as th
 }
 
 TEST_CASE("the fit's kernel: new fits take the pillbox, projects and checkpoints of earlier builds keep the disk") {
-    // A checkpoint names its kernel; one without the field was fitted with the paper's disk.
+    // A checkpoint names its kernel; a version 1 checkpoint without the field was fitted with
+    // the paper's disk (its migration writes that out).
     SteppedFit f = stepped_fit(6, 4, 2, "fit_kernel_checkpoint");
     auto j = nlohmann::json::parse(read_text_file(f.ck / "checkpoint.json"));
     CHECK(j.at("kernel") == "disk");  // tiny_two_layer_data keeps FitData's default
     j.erase("kernel");
+    j["version"] = 1;
     write_file_atomic(f.ck / "checkpoint.json", j.dump());
     {
         FitEngine same(std::make_shared<FitData>(*f.data), f.opts);
