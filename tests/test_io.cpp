@@ -301,7 +301,7 @@ TEST_CASE("bad input: one line naming the file and the problem, non-zero exit") 
 
     SUBCASE("NaN/Inf in EXR: rejected by default, cleaned on request") {
         fs::create_directories(dir / "nan");
-        // 16x16: the smallest clip a project takes.
+        // 16x16: a project takes no clip under 12x12.
         std::vector<float> px(16 * 16 * 3, 0.25f);
         px[3 * (2 * 16 + 5) + 1] = std::numeric_limits<float>::quiet_NaN();  // pixel (5,2)
         px[10] = std::numeric_limits<float>::infinity();

@@ -16,8 +16,8 @@ namespace refocus {
 // Budgets a fit accepts (CLI flags and project.json's "fit" section): a week, 10^8 steps.
 constexpr double kMaxFitMinutes = 7 * 24 * 60.0;
 constexpr long long kMaxFitIters = 100000000;
-// Below this a clip has no room for optical flow (OpenCV's DIS needs 12 px and a pyramid).
-constexpr int kMinClipSize = 16;
+// Below this a clip has no room for optical flow (OpenCV's DIS refuses frames under 12 px).
+constexpr int kMinClipSize = 12;
 
 struct Project {
     static constexpr int kVersion = 1;
