@@ -107,7 +107,7 @@ TEST_CASE("the stack's absolute floor: a wall and a subject never in focus read 
     MESSAGE("subject (mean " << subject.truth << "): " << subject.abs_rel << " px relative only, "
                              << subject.abs_floor << " with the floor");
     // 8 frames at this size hold few isolated edges; synth pan at 320x180x30 reads the wall to
-    // 0.43-0.62 px and the subject to 0.1-1.2 px (README, "How the fit works" 4).
+    // 0.43-0.62 px and the subject to 0.1-1.2 px (docs/method.md, Radius estimation).
     CHECK(wall.abs_floor < 0.6 * wall.abs_rel);
     CHECK(subject.abs_floor < 0.6 * subject.abs_rel);
 }
@@ -145,8 +145,8 @@ TEST_CASE("the stack's absolute floor past what edges measure: a wall blurred 5-
     MESSAGE("wall (mean " << truth / ratio.size() << " px): mean abs error " << abs_err / ratio.size()
                           << " px; estimate / truth at the 1st, 50th, 95th, 99th percentile " << p01 << ", " << p50
                           << ", " << p95 << ", " << p99);
-    // 8 frames read it to 0.25 px, 30 frames (two layers) to 0.09-0.14 (README, "How the fit works" 4); a radius 15% off the
-    // truth at this blur costs more than the whole gain (README, "Known limits").
+    // 8 frames read it to 0.25 px, 30 frames (two layers) to 0.09-0.14 (docs/method.md, Radius estimation); a radius 15% off the
+    // truth at this blur costs more than the whole gain (docs/method.md, Radius estimation).
     CHECK(abs_err / ratio.size() < 0.5);
     CHECK(p50 > 0.93);
     CHECK(p50 < 1.05);
