@@ -9,7 +9,7 @@
 namespace refocus {
 
 class Args {
-public:
+  public:
     // `flags` are options that take no value.
     Args(int argc, char** argv, int first, const std::set<std::string>& flags = {}) {
         for (int i = first; i < argc; ++i) {
@@ -22,7 +22,8 @@ public:
                 } else if (flags.count(key)) {
                     add(key, "1");
                 } else {
-                    if (i + 1 >= argc) throw std::runtime_error("option --" + key + " needs a value");
+                    if (i + 1 >= argc)
+                        throw std::runtime_error("option --" + key + " needs a value");
                     add(key, argv[++i]);
                 }
             } else if (a == "-o") {
@@ -67,7 +68,7 @@ public:
             if (!known.count(k)) throw std::runtime_error("unknown option --" + k);
     }
 
-private:
+  private:
     void add(const std::string& k, const std::string& v) {
         m_opts[k] = v;  // the last one wins where an option is single
         m_all[k].push_back(v);

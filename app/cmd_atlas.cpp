@@ -39,8 +39,10 @@ int cmd_atlas(int argc, char** argv) {
         torch::NoGradGuard g;
         if (!engine->has_atlas())
             throw Error("the perframe preset has no atlas to edit (refit with --preset fast)");
-        torch::Tensor base = layer == "bg" ? engine->model().atlas_bg() : engine->model().atlas_fg();
-        if (!base.defined()) throw Error("the fit has one layer: no foreground atlas (use --layer bg)");
+        torch::Tensor base =
+            layer == "bg" ? engine->model().atlas_bg() : engine->model().atlas_fg();
+        if (!base.defined())
+            throw Error("the fit has one layer: no foreground atlas (use --layer bg)");
         edits.layer(layer == "fg").set_base(tensor_to_image(base.contiguous()));
     }
     AtlasEditor& ed = edits.layer(layer == "fg");

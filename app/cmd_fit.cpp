@@ -28,7 +28,7 @@ std::string clock_text(double s) {
 
 // A progress bar on a terminal, plain lines (every ~10 s) when not.
 class Progress {
-public:
+  public:
     void update(const FitSnapshot& s, bool force = false) {
         const bool tty = isatty(fileno(stderr));
         if (!tty && !force && s.elapsed_s - m_last < 10.0) return;
@@ -41,19 +41,20 @@ public:
         }
         if (tty) {
             const int width = 24, fill = static_cast<int>(s.progress * width);
-            std::fprintf(stderr, "\r[%s%s] %3.0f%% step %lld  reblur %.2f dB  elapsed %s  ETA %s   ",
+            std::fprintf(stderr,
+                         "\r[%s%s] %3.0f%% step %lld  reblur %.2f dB  elapsed %s  ETA %s   ",
                          std::string(fill, '#').c_str(), std::string(width - fill, ' ').c_str(),
                          100 * s.progress, static_cast<long long>(s.step), s.reblur_psnr,
                          clock_text(s.elapsed_s).c_str(), clock_text(s.eta_s).c_str());
             if (force) std::fprintf(stderr, "\n");
         } else {
             std::fprintf(stderr, "step=%lld elapsed=%.1fs eta=%.0fs reblur_psnr=%.2f loss=%.5f%s\n",
-                         static_cast<long long>(s.step), s.elapsed_s, s.eta_s, s.reblur_psnr, s.loss,
-                         terms.c_str());
+                         static_cast<long long>(s.step), s.elapsed_s, s.eta_s, s.reblur_psnr,
+                         s.loss, terms.c_str());
         }
     }
 
-private:
+  private:
     double m_last = -1e9;
 };
 
@@ -93,7 +94,9 @@ int cmd_fit(int argc, char** argv) {
     if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.minutes = 5.0;
     if (s.fit.minutes < 0 || s.fit.iters < 0) throw Error("--minutes and --iters must be positive");
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", static_cast<int>(s.fit.seed)));
-    if (a.has("batch")) s.fit.batch = checked_batch_arg(a.get_int("batch", 0));  // frames per step; left out: the model's choice
+    if (a.has("batch"))
+        s.fit.batch = checked_batch_arg(
+            a.get_int("batch", 0));  // frames per step; left out: the model's choice
     if (a.has("checkpoint-seconds"))
         s.fit.checkpoint_seconds =
             checked_range("--checkpoint-seconds", a.get_double("checkpoint-seconds", 60.0), 0, 1e6);
@@ -108,12 +111,15 @@ int cmd_fit(int argc, char** argv) {
     const fs::path dir = fit_dir(project);
     if (resume) {
         if (!FitEngine::has_checkpoint(dir))
-            throw Error(file_error(dir.string(), "nothing to resume: no checkpoint (run without --resume)"));
+            throw Error(file_error(dir.string(),
+                                   "nothing to resume: no checkpoint (run without --resume)"));
         engine.load_checkpoint(dir);
         std::fprintf(stderr, "resumed at step %lld (%.1f s of training)\n",
                      static_cast<long long>(engine.snapshot().step), engine.snapshot().elapsed_s);
     } else if (FitEngine::has_checkpoint(dir)) {
-        std::fprintf(stderr, "note: starting over (the previous fit is replaced; use --resume to continue it)\n");
+        std::fprintf(
+            stderr,
+            "note: starting over (the previous fit is replaced; use --resume to continue it)\n");
     }
     write_fit_settings(project, s, nullptr);
 
@@ -144,9 +150,10 @@ int cmd_export(int argc, char** argv) {
     Args a(argc, argv, 2);
     a.check_known({"what", "format", "out", "first", "last"});
     if (a.positional().size() != 1 || !a.has("out"))
-        throw Error("usage: refocus export <project> --what "
-                    "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|all "
-                    "[--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>");
+        throw Error(
+            "usage: refocus export <project> --what "
+            "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|all "
+            "[--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>");
     Project project = Project::load(a.positional()[0]);
     PrepareLog log;
     auto engine = open_fitted(project, log);
@@ -156,14 +163,14 @@ int cmd_export(int argc, char** argv) {
     const std::string out = a.get("out");
     std::vector<ExportPass> passes;
     if (what == "all") {
-        passes = {ExportPass::Sharp, ExportPass::Reblur, ExportPass::Atlas,
-                  ExportPass::Alpha, ExportPass::Coc,    ExportPass::Uv,
-                  ExportPass::Refocus, ExportPass::Depth};
+        passes = {ExportPass::Sharp, ExportPass::Reblur, ExportPass::Atlas,   ExportPass::Alpha,
+                  ExportPass::Coc,   ExportPass::Uv,     ExportPass::Refocus, ExportPass::Depth};
     } else {
         passes = {parse_export_pass(what)};
     }
     for (ExportPass p : passes) {
-        const bool data_pass = p == ExportPass::Coc || p == ExportPass::Uv || p == ExportPass::Depth;
+        const bool data_pass =
+            p == ExportPass::Coc || p == ExportPass::Uv || p == ExportPass::Depth;
         std::string format = a.get("format", data_pass ? "exr" : "png");
         if (what == "all" && data_pass) format = "exr";
         if (what == "all" && p == ExportPass::Atlas && format == "mp4") format = "png";

@@ -32,9 +32,12 @@ ClipReadOptions read_options(const Args& a) {
     ClipReadOptions o;
     o.default_fps = checked_range("--fps", a.get_double("fps", 24.0), 0.0, 1000.0, true);
     std::string nf = a.get("nonfinite", "reject");
-    if (nf == "reject") o.nonfinite = NonFinitePolicy::Reject;
-    else if (nf == "clean") o.nonfinite = NonFinitePolicy::Clean;
-    else throw Error("--nonfinite must be 'reject' or 'clean' (got '" + nf + "')");
+    if (nf == "reject")
+        o.nonfinite = NonFinitePolicy::Reject;
+    else if (nf == "clean")
+        o.nonfinite = NonFinitePolicy::Clean;
+    else
+        throw Error("--nonfinite must be 'reject' or 'clean' (got '" + nf + "')");
     return o;
 }
 
@@ -85,7 +88,8 @@ int cmd_info(int argc, char** argv) {
     std::printf("kind:     %s\n", i.kind.c_str());
     std::printf("size:     %dx%d\n", i.width, i.height);
     std::printf("frames:   %d\n", i.frames);
-    std::printf("fps:      %.3f%s\n", i.fps, i.kind == "sequence" ? " (sequence: --fps sets it)" : "");
+    std::printf("fps:      %.3f%s\n", i.fps,
+                i.kind == "sequence" ? " (sequence: --fps sets it)" : "");
     std::printf("source:   %d channel(s), %s, %s\n", i.source_channels, i.source_format.c_str(),
                 i.source_linear ? "linear" : "sRGB-encoded");
     return 0;

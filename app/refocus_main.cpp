@@ -36,7 +36,8 @@ const Command kCommands[] = {
      "       fit --list-settings",
      "fit sharp layered atlases to the project's clip (checkpoints; --resume continues);\n"
      "           --coc: per-frame EXR circle-of-confusion radii in px, instead of the estimate;\n"
-     "           --batch: frames per step (left out: 4 where a layer has the deblurring path, else 2);\n"
+     "           --batch: frames per step (left out: 4 where a layer has the deblurring path, else "
+     "2);\n"
      "           --set: a tuning setting (kept in project.json; --list-settings lists them)"},
     {"export", refocus::cmd_export,
      "export <project> --what sharp|reblur|atlas|alpha|coc|uv|refocus|depth|all\n"
@@ -46,7 +47,8 @@ const Command kCommands[] = {
      "atlas <project> --import <file> --layer bg|fg | --clear [--layer bg|fg]",
      "bring back a repainted atlas (PNG/TIFF/EXR): the edit follows every frame"},
     {"synth", refocus::cmd_synth,
-     "synth --scene rack|walkout|pan|hunt|tripod|list -o <dir> [--size WxH] [--frames N] [--seed S]",
+     "synth --scene rack|walkout|pan|hunt|tripod|list -o <dir> [--size WxH] [--frames N] [--seed "
+     "S]",
      "render a misfocused test clip with exact ground truth (sharp, COC, alpha, flow)"},
 };
 
@@ -54,7 +56,8 @@ void print_help() {
     std::printf(
         "refocus - fix misfocused video: fit sharp layered atlases, refocus, export\n\n"
         "usage: refocus <command> [options]\n\ncommands:\n");
-    for (const auto& c : kCommands) std::printf("  %-8s %s\n           %s\n", c.name, c.help, c.usage);
+    for (const auto& c : kCommands)
+        std::printf("  %-8s %s\n           %s\n", c.name, c.help, c.usage);
     std::printf("\npresets (fit --preset):\n");
     for (const auto& p : refocus::fit_presets())
         std::printf("  %-8s %s\n", p.name.c_str(), p.description.c_str());

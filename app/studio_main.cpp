@@ -29,7 +29,8 @@ int main(int argc, char** argv) {
         if (a == "--help" || a == "-h") {
             std::printf(
                 "usage: refocus-studio [project-or-clip] [--frame N] [--size WxH]\n"
-                "                      [--screenshot out.png --exit-after FRAMES] [--script steps.json]\n"
+                "                      [--screenshot out.png --exit-after FRAMES] [--script "
+                "steps.json]\n"
                 "--script runs a JSON list of actions (see ui/studio_script.h) and exits: 0 when\n"
                 "every step passed.\n");
             return 0;

@@ -120,7 +120,9 @@ TEST_CASE("atlas panel: paint with the mouse, see it, undo/redo with the keyboar
             io.KeysDown[GLFW_KEY_Z] = true;
         };
     };
-    auto release = [](ImGuiIO& io) { io.KeysDown[GLFW_KEY_Z] = false, io.KeyCtrl = io.KeyShift = false; };
+    auto release = [](ImGuiIO& io) {
+        io.KeysDown[GLFW_KEY_Z] = false, io.KeyCtrl = io.KeyShift = false;
+    };
     CHECK(w.frame(panel, key(false)));
     w.frame(panel, release);
     CHECK_FALSE(edits.bg.has_edits());

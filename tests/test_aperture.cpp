@@ -200,13 +200,15 @@ TEST_CASE("a small circle of confusion converts to the pillbox radius that repro
         lens.focus = 0.0;
         const auto out = render_aperture({layer(tex, 1.0f)}, lens);
         auto err = [&](double r) {
-            const torch::Tensor ref = lens_blur(to_chw(tex), torch::full({h, w}, static_cast<float>(r)), p);
+            const torch::Tensor ref =
+                lens_blur(to_chw(tex), torch::full({h, w}, static_cast<float>(r)), p);
             const auto acc = ref.accessor<float, 3>();
             const int b = 6;
             double sum = 0;
             for (int y = b; y < h - b; ++y)
                 for (int x = b; x < w - b; ++x)
-                    for (int k = 0; k < 3; ++k) sum += std::pow(out.rgb.at(x, y, k) - acc[k][y][x], 2);
+                    for (int k = 0; k < 3; ++k)
+                        sum += std::pow(out.rgb.at(x, y, k) - acc[k][y][x], 2);
             return sum;
         };
         const double r = kernel_radius_for_coc(c, p);
@@ -215,8 +217,8 @@ TEST_CASE("a small circle of confusion converts to the pillbox radius that repro
             (lens_blur_second_moment(0.5 * (lo + hi), p) < 0.5 * c * c ? lo : hi) = 0.5 * (lo + hi);
         const double r_old = 0.5 * (lo + hi);
         const double e = err(r), e_old = err(r_old), e_lo = err(0.92 * r), e_hi = err(1.08 * r);
-        MESSAGE("coc " << c << " -> pillbox " << r << ": squared error " << e << " (" << r_old << ": "
-                       << e_old << ", -8% " << e_lo << ", +8% " << e_hi << ")");
+        MESSAGE("coc " << c << " -> pillbox " << r << ": squared error " << e << " (" << r_old
+                       << ": " << e_old << ", -8% " << e_lo << ", +8% " << e_hi << ")");
         if (c < 2) CHECK(e < 0.8 * e_old);
         CHECK(e < e_lo);
         CHECK(e < e_hi);

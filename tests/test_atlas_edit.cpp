@@ -20,7 +20,9 @@ using namespace refocus::test;
 
 namespace {
 
-Image grey_base(int w = 32, int h = 32, float v = 0.5f) { return Image(w, h, 3, v); }
+Image grey_base(int w = 32, int h = 32, float v = 0.5f) {
+    return Image(w, h, 3, v);
+}
 
 AtlasEditor editor_on(const Image& base) {
     AtlasEditor e;
@@ -35,7 +37,9 @@ Brush brush(float size, float hardness, float opacity, Brush::Mode mode = Brush:
     return b;
 }
 
-float alpha(const AtlasEditor& e, int x, int y) { return e.edit().at(x, y, 3); }
+float alpha(const AtlasEditor& e, int x, int y) {
+    return e.edit().at(x, y, 3);
+}
 
 std::string error_of(const std::function<void()>& f) {
     try {
@@ -125,7 +129,8 @@ TEST_CASE("erase shows the fitted atlas again; clone copies from the offset") {
     c.end_stroke();
     for (int dx = -1; dx <= 1; ++dx)
         for (int k = 0; k < 3; ++k)
-            CHECK(c.result().at(8 + dx, 8, k) == doctest::Approx(base.at(16 + dx, 5, k)).epsilon(1e-6));
+            CHECK(c.result().at(8 + dx, 8, k) ==
+                  doctest::Approx(base.at(16 + dx, 5, k)).epsilon(1e-6));
     CHECK(c.result().at(20, 20, 0) == base.at(20, 20, 0));
 }
 
@@ -135,7 +140,8 @@ TEST_CASE("undo/redo restore bit-exact; the history is capped") {
     std::uniform_real_distribution<float> u(0.0f, 48.0f);
     std::vector<std::vector<float>> states{e.edit().pixels};
     for (int s = 0; s < 12; ++s) {
-        Brush b = brush(3 + s, 0.1f * (s % 10), 0.3f + 0.05f * s, s % 4 == 3 ? Brush::Erase : Brush::Paint);
+        Brush b = brush(3 + s, 0.1f * (s % 10), 0.3f + 0.05f * s,
+                        s % 4 == 3 ? Brush::Erase : Brush::Paint);
         b.color[1] = 0.1f * s;
         e.begin_stroke(b);
         e.dab(u(rng), u(rng));
@@ -204,7 +210,8 @@ TEST_CASE("import a repainted atlas: only changed pixels become the edit") {
     Image base(40, 24, 3);
     for (int y = 0; y < 24; ++y)
         for (int x = 0; x < 40; ++x)
-            for (int c = 0; c < 3; ++c) base.at(x, y, c) = srgb_to_linear(0.1f + 0.02f * x + 0.01f * c);
+            for (int c = 0; c < 3; ++c)
+                base.at(x, y, c) = srgb_to_linear(0.1f + 0.02f * x + 0.01f * c);
     base.at(3, 3, 0) = 1.7f;  // an HDR texel: PNG clamps it, that is no edit
     AtlasEditor e = editor_on(base);
     const std::string same = (dir / "same.png").string();
@@ -216,7 +223,8 @@ TEST_CASE("import a repainted atlas: only changed pixels become the edit") {
 
     Image painted = read_image_file(same).image;
     for (int y = 5; y < 10; ++y)
-        for (int x = 20; x < 30; ++x) painted.at(x, y, 0) = 1.0f, painted.at(x, y, 1) = painted.at(x, y, 2) = 0.0f;
+        for (int x = 20; x < 30; ++x)
+            painted.at(x, y, 0) = 1.0f, painted.at(x, y, 1) = painted.at(x, y, 2) = 0.0f;
     const std::string red = (dir / "red.tif").string();
     write_image_file(red, painted, PixelFormat::Tiff16);
     CHECK(e.import_image(red) == 50);
@@ -246,7 +254,8 @@ TEST_CASE("import a repainted atlas: only changed pixels become the edit") {
     Image nan = base;
     nan.at(1, 1, 1) = NAN;
     write_image_file((dir / "nan.exr").string(), nan, PixelFormat::ExrFloat);
-    CHECK(error_of([&] { e.import_image((dir / "nan.exr").string()); }).find("nan.exr") != std::string::npos);
+    CHECK(error_of([&] { e.import_image((dir / "nan.exr").string()); }).find("nan.exr") !=
+          std::string::npos);
 }
 
 TEST_CASE("export round trip: PNG 8, TIFF 16, EXR") {
@@ -260,16 +269,22 @@ TEST_CASE("export round trip: PNG 8, TIFF 16, EXR") {
     e.dab(10, 6);
     e.end_stroke();
     const Image want = e.result();
-    struct Case { PixelFormat f; const char* name; double tol; };
-    for (Case c : {Case{PixelFormat::Png8, "a.png", 0.51 / 255}, Case{PixelFormat::Tiff16, "a.tif", 1e-4},
-                   Case{PixelFormat::ExrHalf, "a.exr", 1e-3}, Case{PixelFormat::ExrFloat, "b.exr", 0}}) {
+    struct Case {
+        PixelFormat f;
+        const char* name;
+        double tol;
+    };
+    for (Case c :
+         {Case{PixelFormat::Png8, "a.png", 0.51 / 255}, Case{PixelFormat::Tiff16, "a.tif", 1e-4},
+          Case{PixelFormat::ExrHalf, "a.exr", 1e-3}, Case{PixelFormat::ExrFloat, "b.exr", 0}}) {
         const std::string path = (dir / c.name).string();
         e.export_image(path, c.f);
         Image got = read_image_file(path).image;
         REQUIRE(got.same_shape(want));
         double worst = 0;
         for (size_t i = 0; i < got.size(); ++i)
-            worst = std::max(worst, double(std::abs(linear_to_srgb(got.pixels[i]) - linear_to_srgb(want.pixels[i]))));
+            worst = std::max(worst, double(std::abs(linear_to_srgb(got.pixels[i]) -
+                                                    linear_to_srgb(want.pixels[i]))));
         CHECK_MESSAGE(worst <= c.tol + 1e-6, c.name << ": " << worst);
         // Importing one's own export is no edit beyond the painted one.
         AtlasEditor again = editor_on(base);
@@ -304,7 +319,8 @@ TEST_CASE("project edits: save/load round trip, size check names the file, no fi
     CHECK_FALSE(back.fg.has_edits());
     back.bg.set_base(grey_base(24, 20, 0.1f));  // training moved on: the edit is kept
     CHECK(back.bg.edit().pixels == ed.bg.edit().pixels);
-    std::string err = error_of([&] { ProjectEdits::load(reloaded).bg.set_base(grey_base(30, 20)); });
+    std::string err =
+        error_of([&] { ProjectEdits::load(reloaded).bg.set_base(grey_base(30, 20)); });
     CHECK(err.find("edit_bg.exr") != std::string::npos);
     CHECK(err.find("24x20") != std::string::npos);
     CHECK(err.find("30x20") != std::string::npos);
@@ -353,7 +369,8 @@ TEST_CASE("apply_edits: exact no-op without edits; the edit lands where the UV m
     // Identity mapping: frame pixel (x, y) ↔ atlas pixel (x, y) (align_corners = false).
     auto ys = torch::arange(H, torch::kFloat32), xs = torch::arange(W, torch::kFloat32);
     auto g = torch::meshgrid({ys, xs}, "ij");
-    auto uv = torch::stack({(g[1] + 0.5) * (2.0 / W) - 1, (g[0] + 0.5) * (2.0 / H) - 1}, -1).unsqueeze(0);
+    auto uv =
+        torch::stack({(g[1] + 0.5) * (2.0 / W) - 1, (g[0] + 0.5) * (2.0 / H) - 1}, -1).unsqueeze(0);
     Image base_img(int(W), int(H), 3);
     for (size_t i = 0; i < base_img.size(); ++i) base_img.pixels[i] = 0.01f * (i % 77);
     auto base = image_to_tensor(base_img);
@@ -389,14 +406,17 @@ TEST_CASE("apply_edits: exact no-op without edits; the edit lands where the UV m
 
 TEST_CASE("CLI: refocus atlas --import a red square; refocus export shows it in every frame") {
     fs::path dir = scratch_dir("atlas_cli");
-    RunResult r = cli("synth --scene tripod -o '" + (dir / "clip").string() + "' --size 48x32 --frames 4 --seed 2");
+    RunResult r = cli("synth --scene tripod -o '" + (dir / "clip").string() +
+                      "' --size 48x32 --frames 4 --seed 2");
     REQUIRE_MESSAGE(r.code == 0, r.output);
     const std::string proj = (dir / "proj").string();
     r = cli("new '" + (dir / "clip" / "input_%04d.png").string() + "' -o '" + proj + "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
-    r = cli("fit '" + proj + "' --iters 3 --coc '" + (dir / "clip" / "coc_%04d.exr").string() + "'");
+    r = cli("fit '" + proj + "' --iters 3 --coc '" + (dir / "clip" / "coc_%04d.exr").string() +
+            "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
-    r = cli("export '" + proj + "' --what atlas --format png --out '" + (dir / "atlas").string() + "'");
+    r = cli("export '" + proj + "' --what atlas --format png --out '" + (dir / "atlas").string() +
+            "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
 
     auto red_pixels = [](const Image& f) {
@@ -416,12 +436,14 @@ TEST_CASE("CLI: refocus atlas --import a red square; refocus export shows it in 
     r = cli("atlas '" + proj + "' --import '" + (dir / "red.png").string() + "' --layer bg");
     REQUIRE_MESSAGE(r.code == 0, r.output);
     CHECK(fs::exists(dir / "proj" / "edits" / "edit_bg.exr"));
-    r = cli("export '" + proj + "' --what sharp --format png --out '" + (dir / "sharp").string() + "'");
+    r = cli("export '" + proj + "' --what sharp --format png --out '" + (dir / "sharp").string() +
+            "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
     auto frames = read_all_frames((dir / "sharp" / "sharp_%04d.png").string());
     REQUIRE(frames.size() == 4);
     for (const Image& f : frames) CHECK(red_pixels(f) > f.width * f.height / 8);
-    r = cli("export '" + proj + "' --what atlas --format png --out '" + (dir / "atlas2").string() + "'");
+    r = cli("export '" + proj + "' --what atlas --format png --out '" + (dir / "atlas2").string() +
+            "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
     CHECK(red_pixels(read_image_file((dir / "atlas2" / "atlas_bg.png").string()).image) ==
           (atlas.width / 2) * (atlas.height / 2));
@@ -431,7 +453,9 @@ TEST_CASE("CLI: refocus atlas --import a red square; refocus export shows it in 
     CHECK(r.output.find("--layer") != std::string::npos);
     r = cli("atlas '" + proj + "' --clear");
     REQUIRE_MESSAGE(r.code == 0, r.output);
-    r = cli("export '" + proj + "' --what sharp --format png --out '" + (dir / "sharp2").string() + "'");
+    r = cli("export '" + proj + "' --what sharp --format png --out '" + (dir / "sharp2").string() +
+            "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
-    for (const Image& f : read_all_frames((dir / "sharp2" / "sharp_%04d.png").string())) CHECK(red_pixels(f) == 0);
+    for (const Image& f : read_all_frames((dir / "sharp2" / "sharp_%04d.png").string()))
+        CHECK(red_pixels(f) == 0);
 }

@@ -55,10 +55,16 @@ TEST_CASE("subject track: a subject walking away is followed in size as well") {
     d.mask = torch::zeros({T, 1, H, W});
     for (int t = 0; t < T; ++t) {
         const int half = int(std::lround(24 * std::pow(k, t)));
-        d.mask[t][0].narrow(0, int(cy) - half, 2 * half).narrow(1, int(cx) - half, 2 * half).fill_(1.0f);
+        d.mask[t][0]
+            .narrow(0, int(cy) - half, 2 * half)
+            .narrow(1, int(cx) - half, 2 * half)
+            .fill_(1.0f);
     }
-    auto g = torch::meshgrid({torch::arange(H, torch::kFloat32), torch::arange(W, torch::kFloat32)}, "ij");
-    d.flow_fwd = torch::stack({(k - 1) * (g[1] - cx), (k - 1) * (g[0] - cy)}).unsqueeze(0).repeat({T - 1, 1, 1, 1});
+    auto g = torch::meshgrid({torch::arange(H, torch::kFloat32), torch::arange(W, torch::kFloat32)},
+                             "ij");
+    d.flow_fwd = torch::stack({(k - 1) * (g[1] - cx), (k - 1) * (g[0] - cy)})
+                     .unsqueeze(0)
+                     .repeat({T - 1, 1, 1, 1});
     d.flow_valid = torch::ones({T - 1, 1, H, W});
     std::vector<double> vx, vy, sc;
     subject_track(d, vx, vy, &sc);
@@ -82,7 +88,9 @@ TEST_CASE("subject track: a subject walking away is followed in size as well") {
     for (double s : sc) CHECK(s == 1.0);
 }
 
-TEST_CASE("automatic masks cleaned along the subject's track: a passing blob is dropped, a lost frame refilled") {
+TEST_CASE(
+    "automatic masks cleaned along the subject's track: a passing blob is dropped, a lost frame "
+    "refilled") {
     // A 12x12 subject moving 2 px a frame to the right over 8 frames of 80x40 (flow to match).
     // Frame 3's mask also holds a wall tile; frame 5's lost the subject.
     FitData d;

@@ -17,17 +17,21 @@
 using namespace refocus;
 using namespace refocus::test;
 
-TEST_CASE("bench fit prints run time against error and writes the CSV; --batch reaches the engine") {
+TEST_CASE(
+    "bench fit prints run time against error and writes the CSV; --batch reaches the engine") {
     TinyClip c = make_tiny("fit_bench");
     const fs::path csv = c.dir / "bench.csv", work = c.dir / "bench_work";
-    RunResult r = cli("bench fit --clip '" + c.clip.string() + "' --preset fast --iters 12 --at 0,0.0001 --batch 3 "
-                      "--oracle-coc --csv '" + csv.string() + "' --work '" + work.string() + "'");
+    RunResult r = cli("bench fit --clip '" + c.clip.string() +
+                      "' --preset fast --iters 12 --at 0,0.0001 --batch 3 "
+                      "--oracle-coc --csv '" +
+                      csv.string() + "' --work '" + work.string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
     CHECK(r.output.find("radius ground truth") != std::string::npos);
     CHECK(r.output.find("(end)") != std::string::npos);
     CHECK(r.output.find("gain over input") != std::string::npos);
-    // The end's error by spatial frequency: every band from 0 to 0.71 cycles/px, the input's beside.
+    // The end's error by spatial frequency: every band from 0 to 0.71 cycles/px, the input's
+    // beside.
     CHECK(r.output.find("error by spatial frequency") != std::string::npos);
     CHECK(r.output.find("  0.00-0.02 ") != std::string::npos);
     CHECK(r.output.find("  0.50-0.71 ") != std::string::npos);
@@ -64,8 +68,8 @@ TEST_CASE("bench fit prints run time against error and writes the CSV; --batch r
 TEST_CASE("bench bound: the wall's ceiling and Wiener bound against the truth; bad clips refused") {
     TinyClip c = make_tiny("fit_bound", "walkout", "160x90");
     // A fit's sharp frames are scored on the same pixels: the truth itself scores far above all.
-    RunResult r = cli("bench bound --clip '" + c.clip.string() + "' --lambdas 1e-6,1e-5 --iters 60 --sharp '" +
-                      c.clip.string() + "'");
+    RunResult r = cli("bench bound --clip '" + c.clip.string() +
+                      "' --lambdas 1e-6,1e-5 --iters 60 --sharp '" + c.clip.string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
     auto figure = [&](const std::string& label) {

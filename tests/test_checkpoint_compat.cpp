@@ -38,7 +38,8 @@ SteppedFit stepped_fit(unsigned seed, int64_t iters, int steps, const std::strin
     return f;
 }
 
-TEST_CASE("a checkpoint without the shared matte or the track's kind loads as the build that wrote it") {
+TEST_CASE(
+    "a checkpoint without the shared matte or the track's kind loads as the build that wrote it") {
     SteppedFit f = stepped_fit(5, 4, 2, "fit_old_checkpoint");
     auto& [data, o, engine, ck] = f;
     FitEngine& a = *engine;
@@ -67,7 +68,9 @@ TEST_CASE("a checkpoint without the shared matte or the track's kind loads as th
     CHECK(torch::allclose(alpha, want, 1e-5, 1e-5));
 }
 
-TEST_CASE("the fit's kernel: new fits take the pillbox, projects and checkpoints of earlier builds keep the disk") {
+TEST_CASE(
+    "the fit's kernel: new fits take the pillbox, projects and checkpoints of earlier builds keep "
+    "the disk") {
     // A checkpoint names its kernel; a version 1 checkpoint without the field was fitted with
     // the paper's disk (its migration writes that out).
     SteppedFit f = stepped_fit(6, 4, 2, "fit_kernel_checkpoint");
@@ -93,7 +96,8 @@ TEST_CASE("the fit's kernel: new fits take the pillbox, projects and checkpoints
         CHECK(m.find("'kernel' is \"disk\"") != std::string::npos);
         CHECK(m.find("pillbox") != std::string::npos);
     }
-    CHECK_THROWS_WITH_AS(fit_kernel_params("gauss"), doctest::Contains("unknown kernel 'gauss'"), Error);
+    CHECK_THROWS_WITH_AS(fit_kernel_params("gauss"), doctest::Contains("unknown kernel 'gauss'"),
+                         Error);
     CHECK(fit_kernel_params("pillbox").kernel == BlurKernel::Pillbox);
     CHECK(fit_kernel_params("disk").kernel == BlurKernel::Disk);
 
@@ -113,8 +117,10 @@ TEST_CASE("the fit's kernel: new fits take the pillbox, projects and checkpoints
     CHECK(read_fit_settings(Project::load(c.project)).setup.kernel == "disk");
     pj.at("fit")["kernel"] = "bokeh";
     write_file_atomic(p.project_file(), pj.dump());
-    CHECK_THROWS_WITH_AS(read_fit_settings(Project::load(c.project)),
-                         doctest::Contains("project.json: malformed 'fit' section: fit: unknown kernel 'bokeh'"), Error);
+    CHECK_THROWS_WITH_AS(
+        read_fit_settings(Project::load(c.project)),
+        doctest::Contains("project.json: malformed 'fit' section: fit: unknown kernel 'bokeh'"),
+        Error);
     PrepareLog log;
     FitSetupOptions so;
     so.kernel = "disk";
@@ -142,7 +148,9 @@ TEST_CASE("a reopened project rebuilds the model its fit trained: the masks are 
     }
 }
 
-TEST_CASE("a checkpoint keeps its atlases' geometry: a build that would place them otherwise renders what was trained") {
+TEST_CASE(
+    "a checkpoint keeps its atlases' geometry: a build that would place them otherwise renders "
+    "what was trained") {
     SteppedFit f = stepped_fit(7, 6, 3, "fit_geometry_checkpoint");
     auto& [data, o, engine, ck] = f;
     FitEngine& a = *engine;

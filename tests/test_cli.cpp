@@ -8,7 +8,8 @@ using refocus::test::cli;
 TEST_CASE("--help lists the subcommands") {
     auto r = cli("--help");
     CHECK(r.code == 0);
-    for (const char* c : {"new", "info"}) CHECK(r.output.find(std::string("  ") + c) != std::string::npos);
+    for (const char* c : {"new", "info"})
+        CHECK(r.output.find(std::string("  ") + c) != std::string::npos);
 }
 
 TEST_CASE("unknown command and unknown option fail with a message") {

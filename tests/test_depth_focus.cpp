@@ -35,7 +35,9 @@ struct Synthetic {
     int T, H, W, Wa;
     torch::Tensor radius, uv_bg, uv_fg, alpha;
     std::vector<double> focus, offset;
-    static double bg_depth(double X, double Y) { return 1.0 + 3.0 * Y / 40.0 + 1.5 * std::sin(X / 9.0); }
+    static double bg_depth(double X, double Y) {
+        return 1.0 + 3.0 * Y / 40.0 + 1.5 * std::sin(X / 9.0);
+    }
     static double fg_depth(double X, double Y) { return 7.0 + 0.02 * (X - 24); }
 };
 
@@ -66,15 +68,16 @@ Synthetic make_synthetic(const std::vector<double>& focus, bool two_layers, doub
                 UF[t][y][x][1] = float((2.0 * y + 1) / s.H - 1);
                 const bool fg = two_layers && std::hypot(x - 24.0, y - 20.0) < 11.0;
                 A[t][0][y][x] = fg ? 1.0f : 0.0f;
-                const double d = fg ? Synthetic::fg_depth(x, y) + s.offset[t] : Synthetic::bg_depth(X, y);
+                const double d =
+                    fg ? Synthetic::fg_depth(x, y) + s.offset[t] : Synthetic::bg_depth(X, y);
                 R[t][y][x] = float(std::fabs(d - focus[t]) + noise * n01(rng));
             }
     return s;
 }
 
 DepthModel fit(const Synthetic& s, bool two) {
-    return fit_depth(s.radius, s.uv_bg, two ? s.uv_fg : torch::Tensor(), two ? s.alpha : torch::Tensor(),
-                     s.H, s.Wa, two ? s.H : 0, two ? s.W : 0);
+    return fit_depth(s.radius, s.uv_bg, two ? s.uv_fg : torch::Tensor(),
+                     two ? s.alpha : torch::Tensor(), s.H, s.Wa, two ? s.H : 0, two ? s.W : 0);
 }
 
 double pearson(const std::vector<double>& a, const std::vector<double>& b) {
@@ -124,7 +127,9 @@ Image uv_image(const torch::Tensor& uv, int t) {  // [T,H,W,2] → frame t's 2-c
     return tensor_to_image(uv[t].permute({2, 0, 1}).contiguous());
 }
 
-bool all_finite(const Image& img) { return count_nonfinite(img) == 0; }
+bool all_finite(const Image& img) {
+    return count_nonfinite(img) == 0;
+}
 
 Image random_image(int w, int h, int c, unsigned seed, float lo = 0, float hi = 1) {
     std::mt19937 rng(seed);
@@ -143,13 +148,15 @@ TEST_CASE("fit_depth recovers depth and focus on a focus sweep (two layers, movi
     Synthetic s = make_synthetic(sweep(T), true, 0.05, offset);
     const auto t0 = std::chrono::steady_clock::now();
     DepthModel m = fit(s, true);
-    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double secs =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     const double corr = bg_correlation(m, s);
     MESSAGE("sweep: rms " << m.rms_px << " px, bg correlation " << corr << ", rounds " << m.rounds
                           << ", " << secs << " s");
     CHECK(m.rms_px < 0.3);
     CHECK(corr > 0.95);
-    std::vector<double> ff(m.focus.begin(), m.focus.end()), fo(m.fg_offset.begin(), m.fg_offset.end());
+    std::vector<double> ff(m.focus.begin(), m.focus.end()),
+        fo(m.fg_offset.begin(), m.fg_offset.end());
     CHECK(pearson(ff, s.focus) > 0.95);
     CHECK(pearson(fo, offset) > 0.9);
     // the subject (in front of the wall in the truth) is in front in the fit
@@ -175,7 +182,8 @@ TEST_CASE("fit_depth at 320x180x30 is fast") {
             }
     const auto t0 = std::chrono::steady_clock::now();
     DepthModel m = fit_depth(radius, uv, {}, {}, H, W, 0, 0);
-    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double secs =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     MESSAGE("fit_depth 320x180x30, one layer: " << secs << " s, rms " << m.rms_px << " px, rounds "
                                                 << m.rounds);
     CHECK(m.rms_px < 0.3);
@@ -207,15 +215,17 @@ TEST_CASE("one layer: fits, and the gauge puts the farthest point at 0") {
     PreviewDepth pd = m.frame_depth(2, uv_image(s.uv_bg, 2), Image());
     CHECK(pd.foreground.empty());
     REQUIRE(pd.background.width == s.W);
-    CHECK(std::fabs(pd.background.at(10, 5, 0) - m.depth_at_atlas(0, s.uv_bg[2][5][10][0].item<float>(),
-                                                                   s.uv_bg[2][5][10][1].item<float>(), 2)) < 1e-6);
+    CHECK(std::fabs(pd.background.at(10, 5, 0) -
+                    m.depth_at_atlas(0, s.uv_bg[2][5][10][0].item<float>(),
+                                     s.uv_bg[2][5][10][1].item<float>(), 2)) < 1e-6);
 }
 
 TEST_CASE("texels no frame saw are filled with finite values in the seen range") {
     Synthetic s = make_synthetic(sweep(6), true, 0.05);
     // A background atlas twice as tall as the part the frames see.
-    DepthModel m = fit_depth(s.radius, s.uv_bg * torch::tensor({1.0f, 0.5f}) - torch::tensor({0.0f, 0.5f}),
-                             s.uv_fg, s.alpha, 2 * s.H, s.Wa, s.H, s.W);
+    DepthModel m =
+        fit_depth(s.radius, s.uv_bg * torch::tensor({1.0f, 0.5f}) - torch::tensor({0.0f, 0.5f}),
+                  s.uv_fg, s.alpha, 2 * s.H, s.Wa, s.H, s.W);
     CHECK(all_finite(m.bg_atlas));
     CHECK(all_finite(m.fg_atlas));
     float seen_lo = 1e9f, seen_hi = -1e9f;
@@ -233,8 +243,9 @@ TEST_CASE("texels no frame saw are filled with finite values in the seen range")
 
 TEST_CASE("NaN and Inf in the radius or the UVs do not make NaN depth") {
     Synthetic s = make_synthetic(sweep(6), true, 0.05);
-    s.radius.index_put_({torch::indexing::Slice(), torch::indexing::Slice(0, 10), torch::indexing::Slice()},
-                        std::nanf(""));
+    s.radius.index_put_(
+        {torch::indexing::Slice(), torch::indexing::Slice(0, 10), torch::indexing::Slice()},
+        std::nanf(""));
     s.radius[2][30][30] = INFINITY;
     s.uv_bg[3][35][50][0] = NAN;
     DepthModel m = fit(s, true);
@@ -247,7 +258,8 @@ TEST_CASE("NaN and Inf in the radius or the UVs do not make NaN depth") {
     }
     CHECK(m.rms_px < 0.3);
     // an all-NaN clip still gives finite (constant) depth
-    DepthModel z = fit_depth(torch::full({2, 4, 4}, NAN), torch::zeros({2, 4, 4, 2}), {}, {}, 4, 4, 0, 0);
+    DepthModel z =
+        fit_depth(torch::full({2, 4, 4}, NAN), torch::zeros({2, 4, 4, 2}), {}, {}, 4, 4, 0, 0);
     CHECK(all_finite(z.bg_atlas));
     CHECK(std::isfinite(z.focus[0]));
 }
@@ -261,14 +273,14 @@ TEST_CASE("lanes: linear, ease-in-out, hold, before/after, set and remove") {
     REQUIRE(lane.keys.size() == 3);
     CHECK(lane.keys[0].frame == 0);
     CHECK(lane.keys[1].frame == 10);
-    CHECK(lane.eval(-5, 9) == 0.0);            // before the first key: hold
-    CHECK(lane.eval(100, 9) == 5.0);           // after the last key: hold
-    CHECK(lane.eval(5, 9) == doctest::Approx(0.5));   // ease-in-out midpoint
+    CHECK(lane.eval(-5, 9) == 0.0);                        // before the first key: hold
+    CHECK(lane.eval(100, 9) == 5.0);                       // after the last key: hold
+    CHECK(lane.eval(5, 9) == doctest::Approx(0.5));        // ease-in-out midpoint
     CHECK(lane.eval(2.5, 9) == doctest::Approx(0.15625));  // 3s² − 2s³ at s = 1/4
-    CHECK(lane.eval(15, 9) == doctest::Approx(3.0));  // linear
-    lane.set(10, 2.0, Easing::Hold);           // replaces the key at frame 10
+    CHECK(lane.eval(15, 9) == doctest::Approx(3.0));       // linear
+    lane.set(10, 2.0, Easing::Hold);                       // replaces the key at frame 10
     CHECK(lane.keys.size() == 3);
-    CHECK(lane.eval(15, 9) == 2.0);            // hold
+    CHECK(lane.eval(15, 9) == 2.0);  // hold
     CHECK(lane.eval(10, 9) == 2.0);
     CHECK(lane.remove(10));
     CHECK_FALSE(lane.remove(10));
@@ -443,14 +455,17 @@ TEST_CASE("render_refocused: aperture 0 is the sharp composite; defocus blurs by
 
 TEST_CASE("refocus export --what refocus and --what depth on a tiny fitted clip") {
     const fs::path dir = scratch_dir("depth_cli");
-    RunResult r = cli("synth --scene tripod -o '" + (dir / "clip").string() + "' --size 64x36 --frames 6 --seed 3");
+    RunResult r = cli("synth --scene tripod -o '" + (dir / "clip").string() +
+                      "' --size 64x36 --frames 6 --seed 3");
     REQUIRE_MESSAGE(r.code == 0, r.output);
     const fs::path proj = dir / "proj";
     r = cli("new '" + (dir / "clip" / "input_%04d.png").string() + "' -o '" + proj.string() + "'");
     REQUIRE(r.code == 0);
-    r = cli("fit '" + proj.string() + "' --iters 40 --coc '" + (dir / "clip" / "coc_%04d.exr").string() + "'");
+    r = cli("fit '" + proj.string() + "' --iters 40 --coc '" +
+            (dir / "clip" / "coc_%04d.exr").string() + "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
-    r = cli("export '" + proj.string() + "' --what depth --format png --out '" + (dir / "d").string() + "'");
+    r = cli("export '" + proj.string() + "' --what depth --format png --out '" +
+            (dir / "d").string() + "'");
     CHECK(r.code != 0);
     CHECK(r.output.find("exr") != std::string::npos);
     r = cli("export '" + proj.string() + "' --what depth --out '" + (dir / "depth").string() + "'");
@@ -466,15 +481,18 @@ TEST_CASE("refocus export --what refocus and --what depth on a tiny fitted clip"
     for (int y = 2; y < 34; ++y)
         for (int x = 2; x < 62; ++x) {
             a.push_back(depth[3].at(x, y, 0));
-            b.push_back(read_image_file((dir / "clip" / "invdepth_0003.exr").string()).image.at(x, y, 0));
+            b.push_back(
+                read_image_file((dir / "clip" / "invdepth_0003.exr").string()).image.at(x, y, 0));
         }
     MESSAGE("depth vs true inverse depth, Pearson " << pearson(a, b));
     CHECK(std::fabs(pearson(a, b)) > 0.8);
 
     // As shot: aperture 1 at the clip's own focus reblurs; with no keys it is the sharp plate.
-    r = cli("export '" + proj.string() + "' --what refocus --format exr32 --out '" + (dir / "rf0").string() + "'");
+    r = cli("export '" + proj.string() + "' --what refocus --format exr32 --out '" +
+            (dir / "rf0").string() + "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
-    r = cli("export '" + proj.string() + "' --what sharp --format exr32 --out '" + (dir / "sharp").string() + "'");
+    r = cli("export '" + proj.string() + "' --what sharp --format exr32 --out '" +
+            (dir / "sharp").string() + "'");
     REQUIRE(r.code == 0);
     const auto rf0 = read_all_frames((dir / "rf0" / "refocus_%04d.exr").string());
     const auto sharp = read_all_frames((dir / "sharp" / "sharp_%04d.exr").string());
@@ -484,23 +502,26 @@ TEST_CASE("refocus export --what refocus and --what depth on a tiny fitted clip"
     FocusTrack ft;
     ft.aperture.set(0, 1.0);
     write_focus(p, ft);
-    r = cli("export '" + proj.string() + "' --what refocus --format exr32 --out '" + (dir / "rf1").string() + "'");
+    r = cli("export '" + proj.string() + "' --what refocus --format exr32 --out '" +
+            (dir / "rf1").string() + "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
     const auto rf1 = read_all_frames((dir / "rf1" / "refocus_%04d.exr").string());
     const auto input = read_all_frames((dir / "clip" / "input_%04d.png").string());
     const double psnr_as_shot = mean_psnr(rf1, input), psnr_sharp = mean_psnr(sharp, input);
-    MESSAGE("PSNR against the input: refocused at aperture 1 " << psnr_as_shot << " dB, sharp plate "
-                                                               << psnr_sharp << " dB");
+    MESSAGE("PSNR against the input: refocused at aperture 1 "
+            << psnr_as_shot << " dB, sharp plate " << psnr_sharp << " dB");
     CHECK(psnr_as_shot > psnr_sharp);
     CHECK(max_abs_diff(rf1[2], sharp[2]) > 1e-3);
     // An atlas repaint shows in the refocused frames as in the sharp plate.
-    r = cli("export '" + proj.string() + "' --what atlas --format exr32 --out '" + (dir / "atlas").string() + "'");
+    r = cli("export '" + proj.string() + "' --what atlas --format exr32 --out '" +
+            (dir / "atlas").string() + "'");
     REQUIRE_MESSAGE(r.code == 0, r.output);
     Image atlas = read_image_file((dir / "atlas" / "atlas_bg.exr").string()).image;
     for (int y = 0; y < atlas.height / 2; ++y)
         for (int x = 0; x < atlas.width; ++x) atlas.at(x, y, 0) = 1.0f;
     write_image_file((dir / "atlas" / "painted.exr").string(), atlas, PixelFormat::ExrFloat);
-    r = cli("atlas '" + proj.string() + "' --import '" + (dir / "atlas" / "painted.exr").string() + "' --layer bg");
+    r = cli("atlas '" + proj.string() + "' --import '" + (dir / "atlas" / "painted.exr").string() +
+            "' --layer bg");
     REQUIRE_MESSAGE(r.code == 0, r.output);
     p = Project::load(proj);
     write_focus(p, FocusTrack());

@@ -23,8 +23,8 @@ LensBlurParams pillbox() {
 
 // A straight step through (cx, cy) with normal angle `deg`, pixel-integrated (4x4 supersampled),
 // from `lo` to `hi`, blurred by the pillbox of radius r.
-torch::Tensor blurred_step(int H, int W, double cx, double cy, double deg, double r, float lo = 0.1f,
-                           float hi = 0.6f) {
+torch::Tensor blurred_step(int H, int W, double cx, double cy, double deg, double r,
+                           float lo = 0.1f, float hi = 0.6f) {
     const double a = deg * M_PI / 180, nx = std::cos(a), ny = std::sin(a);
     auto img = torch::zeros({1, H, W});
     auto acc = img.accessor<float, 3>();
@@ -39,11 +39,14 @@ torch::Tensor blurred_step(int H, int W, double cx, double cy, double deg, doubl
     return lens_blur(img, torch::full({H, W}, float(r)), pillbox())[0];
 }
 
-double median_of(const torch::Tensor& v) { return v.median().item<double>(); }
+double median_of(const torch::Tensor& v) {
+    return v.median().item<double>();
+}
 
 }  // namespace
 
-TEST_CASE("edge blur: a step blurred by the fit's pillbox reads its radius, at any angle and offset") {
+TEST_CASE(
+    "edge blur: a step blurred by the fit's pillbox reads its radius, at any angle and offset") {
     const int H = 96, W = 96;
     auto allowed = torch::ones({H, W}, torch::kBool);
     for (double r : {0.0, 1.5, 3.0, 6.0}) {
@@ -53,7 +56,8 @@ TEST_CASE("edge blur: a step blurred by the fit's pillbox reads its radius, at a
             INFO("r " << r << " angle " << deg << ": " << e.size() << " edges of " << e.candidates);
             REQUIRE(e.size() >= 10);
             const double m = median_of(e.radius);
-            MESSAGE("step r=" << r << " at " << deg << " deg reads " << m << " px (" << e.size() << " edges)");
+            MESSAGE("step r=" << r << " at " << deg << " deg reads " << m << " px (" << e.size()
+                              << " edges)");
             const bool axis = deg == 0.0 || deg == 90.0;
             if (r == 0.0 && !axis)  // a pixel seen along its diagonal spans √2 px: a sharp
                 CHECK(m <= 0.75);   // oblique step reads 0.75, under the floor's dead zone
@@ -63,7 +67,8 @@ TEST_CASE("edge blur: a step blurred by the fit's pillbox reads its radius, at a
     }
 }
 
-TEST_CASE("edge blur: profiles stay inside the allowed region; weak steps and flat images give nothing") {
+TEST_CASE(
+    "edge blur: profiles stay inside the allowed region; weak steps and flat images give nothing") {
     const int H = 80, W = 80;
     auto img = blurred_step(H, W, 40.2, 40.0, 0.0, 3.0);
     // The step's own column is allowed, but not the side of it the fit window needs.
@@ -73,8 +78,10 @@ TEST_CASE("edge blur: profiles stay inside the allowed region; weak steps and fl
     // A step of 1% contrast is under min_contrast.
     auto weak = blurred_step(H, W, 40.2, 40.0, 0.0, 3.0, 0.50f, 0.51f);
     CHECK(measure_edge_blur(weak, torch::ones({H, W}, torch::kBool), pillbox()).size() == 0);
-    CHECK(measure_edge_blur(torch::full({H, W}, 0.3f), torch::ones({H, W}, torch::kBool), pillbox()).size() == 0);
-    CHECK_THROWS_AS(measure_edge_blur(img, torch::ones({H, W + 1}, torch::kBool), pillbox()), Error);
+    CHECK(measure_edge_blur(torch::full({H, W}, 0.3f), torch::ones({H, W}, torch::kBool), pillbox())
+              .size() == 0);
+    CHECK_THROWS_AS(measure_edge_blur(img, torch::ones({H, W + 1}, torch::kBool), pillbox()),
+                    Error);
 }
 
 TEST_CASE("edge blur: fine texture is not read as a blurred step") {
@@ -104,8 +111,11 @@ TEST_CASE("edge blur: the model's step responses are the lens blur layer's own")
     // Every response rises from 0 to 1, monotone, and is symmetric about its offset.
     CHECK(M.select(1, 0).abs().max().item<double>() < 1e-6);
     CHECK((M.select(1, M.size(1) - 1) - 1).abs().max().item<double>() < 1e-5);
-    CHECK((M.narrow(1, 1, M.size(1) - 1) - M.narrow(1, 0, M.size(1) - 1)).min().item<double>() > -1e-6);
+    CHECK((M.narrow(1, 1, M.size(1) - 1) - M.narrow(1, 0, M.size(1) - 1)).min().item<double>() >
+          -1e-6);
     // Offset 0 (the middle of `offsets`): value ½ at the step.
     const int64_t k0 = (offsets.size() / 2);
-    for (size_t i = 0; i < radii.size(); i += 8) CHECK(M[i * offsets.size() + k0][o.reach].item<double>() == doctest::Approx(0.5).epsilon(1e-4));
+    for (size_t i = 0; i < radii.size(); i += 8)
+        CHECK(M[i * offsets.size() + k0][o.reach].item<double>() ==
+              doctest::Approx(0.5).epsilon(1e-4));
 }

@@ -20,7 +20,9 @@
 using namespace refocus;
 using namespace refocus::test;
 
-TEST_CASE("fast model renders a margin past the frame edge; the reblur crops it back; checkpoints keep the figures") {
+TEST_CASE(
+    "fast model renders a margin past the frame edge; the reblur crops it back; checkpoints keep "
+    "the figures") {
     // Near an edge the lens gathered light from outside the frame: the atlas reaches past it by
     // the widest blur support, and training blurs the padded render (FitModel::render_padded).
     const int64_t T = 3, H = 24, W = 32;
@@ -42,7 +44,10 @@ TEST_CASE("fast model renders a margin past the frame edge; the reblur crops it 
     CHECK(torch::allclose(b.sharp.narrow(2, P, H).narrow(3, P, W), a.sharp, 1e-5, 1e-5));
     // The margin starts as the frame's edge carried outward.
     CHECK((b.sharp.select(3, 0) - b.sharp.select(3, P)).abs().max().item<double>() < 1e-4);
-    CHECK((b.sharp.select(2, H + 2 * P - 1) - b.sharp.select(2, P + H - 1)).abs().max().item<double>() < 1e-4);
+    CHECK((b.sharp.select(2, H + 2 * P - 1) - b.sharp.select(2, P + H - 1))
+              .abs()
+              .max()
+              .item<double>() < 1e-4);
     auto rb = e.reblur(b, {0, 2}), rb0 = e.reblur(a, {0, 2});
     REQUIRE(rb.sizes() == rb0.sizes());
     // Two supports from the edges the two agree; at the edge they differ.
@@ -94,11 +99,13 @@ TEST_CASE("a subject seen smaller than in its atlas: the atlas is prefiltered fo
     // ones): the fit says that it prefilters, and its sharp frames stay finite.
     TinyClip c = make_tiny("fit_walkaway", "walkout", "160x90");
     RunResult r = cli("fit '" + c.project.string() + "' --preset fast --iters 3 --coc '" +
-                      (c.clip / "coc_%04d.exr").string() + "' --mask '" + (c.clip / "alpha_%04d.png").string() + "'");
+                      (c.clip / "coc_%04d.exr").string() + "' --mask '" +
+                      (c.clip / "alpha_%04d.png").string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
     CHECK(r.output.find("the subject's size changes along the clip") != std::string::npos);
-    CHECK(r.output.find("prefiltered for each frame where the subject is smaller") != std::string::npos);
+    CHECK(r.output.find("prefiltered for each frame where the subject is smaller") !=
+          std::string::npos);
     for (const auto& img : export_sharp(c, "sharp"))
         for (float v : img.pixels) REQUIRE(std::isfinite(v));
 }
@@ -111,8 +118,10 @@ TEST_CASE("a static camera's hand shake is found; a locked-off camera keeps the 
     torch::manual_seed(4);
     namespace F = torch::nn::functional;
     auto texture = F::interpolate(torch::rand({1, 3, H / 3, W / 3}),
-                                  F::InterpolateFuncOptions().size(std::vector<int64_t>{H + 16, W + 16})
-                                      .mode(torch::kBilinear).align_corners(false));
+                                  F::InterpolateFuncOptions()
+                                      .size(std::vector<int64_t>{H + 16, W + 16})
+                                      .mode(torch::kBilinear)
+                                      .align_corners(false));
     const double sx[T] = {0.0, 0.9, -1.2, 0.5, 1.4}, sy[T] = {0.0, -0.6, 0.8, 1.1, -0.4};
     auto make = [&](bool shake) {
         auto d = std::make_shared<FitData>();
@@ -125,8 +134,9 @@ TEST_CASE("a static camera's hand shake is found; a locked-off camera keeps the 
             auto xs = (torch::arange(W, torch::kFloat32) + 8.0 + dx + 0.5) * (2.0 / (W + 16)) - 1.0;
             auto g = torch::meshgrid({ys, xs}, "ij");
             auto grid = torch::stack({g[1], g[0]}, -1).unsqueeze(0);
-            auto f = F::grid_sample(texture, grid, F::GridSampleFuncOptions().mode(torch::kBilinear)
-                                                       .align_corners(false))[0];
+            auto f = F::grid_sample(
+                texture, grid,
+                F::GridSampleFuncOptions().mode(torch::kBilinear).align_corners(false))[0];
             frames.push_back(lens_blur(f.contiguous(), torch::full({H, W}, 1.0f), d->blur));
         }
         d->input = torch::stack(frames);
@@ -143,7 +153,8 @@ TEST_CASE("a static camera's hand shake is found; a locked-off camera keeps the 
         for (int64_t t = 1; t < T; ++t) {
             const double ex = A[t][0][2].item<double>() - A[0][0][2].item<double>();
             const double ey = A[t][1][2].item<double>() - A[0][1][2].item<double>();
-            INFO("frame " << t << ": found (" << ex << ", " << ey << "), shaken by (" << sx[t] << ", " << sy[t] << ")");
+            INFO("frame " << t << ": found (" << ex << ", " << ey << "), shaken by (" << sx[t]
+                          << ", " << sy[t] << ")");
             CHECK(std::abs(ex - sx[t]) < 0.15);
             CHECK(std::abs(ey - sy[t]) < 0.15);
         }
@@ -162,15 +173,17 @@ namespace {
 // A pan over a texture with detail up to the frame's Nyquist limit, each frame box-filtered
 // from a 4x render (a sensor integrates over its pixel): frame t shows the texture moved by
 // `pan` px per frame, at a new sub-pixel phase each time. Returns the data and the sharp frames.
-std::pair<std::shared_ptr<FitData>, torch::Tensor> pan_over_detail(int64_t T, double pan, double radius) {
+std::pair<std::shared_ptr<FitData>, torch::Tensor> pan_over_detail(int64_t T, double pan,
+                                                                   double radius) {
     namespace F = torch::nn::functional;
     const int64_t H = 40, W = 56, S = 4, M = 24;  // M: texture margin, px
     torch::manual_seed(11);
     // Texture at 4x: random 1.5 px cells, nearest-neighbour (hard edges, as glyphs and checkers).
     auto cells = torch::rand({1, 3, (H + 2 * M) * 2 / 3, (W + 2 * M) * 2 / 3});
-    auto tex = F::interpolate(cells, F::InterpolateFuncOptions()
-                                         .size(std::vector<int64_t>{(H + 2 * M) * S, (W + 2 * M) * S})
-                                         .mode(torch::kNearest));
+    auto tex =
+        F::interpolate(cells, F::InterpolateFuncOptions()
+                                  .size(std::vector<int64_t>{(H + 2 * M) * S, (W + 2 * M) * S})
+                                  .mode(torch::kNearest));
     auto d = std::make_shared<FitData>();
     d->frames = T, d->height = H, d->width = W;
     d->blur.kernel = BlurKernel::Pillbox;
@@ -179,7 +192,8 @@ std::pair<std::shared_ptr<FitData>, torch::Tensor> pan_over_detail(int64_t T, do
         const double dx = pan * t;  // frame pixel x shows the texture at x + M + dx
         const int64_t ox = int64_t(std::floor(dx * S)), oy = M * S;
         auto crop = tex.narrow(2, oy, H * S).narrow(3, M * S + ox, W * S);
-        auto f = F::avg_pool2d(crop, F::AvgPool2dFuncOptions(S))[0];  // exact for dx on the 1/4 grid
+        auto f =
+            F::avg_pool2d(crop, F::AvgPool2dFuncOptions(S))[0];  // exact for dx on the 1/4 grid
         sharp.push_back(f);
         in.push_back(lens_blur(f.contiguous(), torch::full({H, W}, float(radius)), d->blur));
         hs.push_back(translation(double(ox) / S, 0.0));  // frame t → frame 0's coordinates
@@ -196,7 +210,9 @@ double psnr_of(const torch::Tensor& a, const torch::Tensor& b) {
 }
 }  // namespace
 
-TEST_CASE("a moving camera fits a 2x atlas: detail seen at many sub-pixel phases is resolved; checkpoints keep the resolution") {
+TEST_CASE(
+    "a moving camera fits a 2x atlas: detail seen at many sub-pixel phases is resolved; "
+    "checkpoints keep the resolution") {
     auto [d, sharp] = pan_over_detail(8, 1.25, 0.4);
     // The decision: a given radius, a moving camera and the clip in focus take 2x; an estimated
     // radius, a static camera, or a clip that nothing shows in focus stay at the frame's
@@ -251,7 +267,8 @@ TEST_CASE("a moving camera fits a 2x atlas: detail seen at many sub-pixel phases
     };
     const fs::path ck = scratch_dir("fit_atlas_scale");
     const double f1 = fit(1, {}), f2 = fit(2, ck);
-    MESSAGE("fitted, sharp PSNR: input " << psnr_of(d->input, sharp) << " dB, 1x " << f1 << ", 2x " << f2);
+    MESSAGE("fitted, sharp PSNR: input " << psnr_of(d->input, sharp) << " dB, 1x " << f1 << ", 2x "
+                                         << f2);
     CHECK(f2 > f1 + 1.0);
     // The checkpoint names its scale; a reopened project takes it whatever this build decides,
     // and a checkpoint of an earlier build (no field) was 1x.
@@ -273,7 +290,9 @@ TEST_CASE("a moving camera fits a 2x atlas: detail seen at many sub-pixel phases
     CHECK(old.data().atlas_scale == 1);
 }
 
-TEST_CASE("the deblurring path: a wall blurred in every frame deblurs faster; it leaves the mean; old checkpoints load") {
+TEST_CASE(
+    "the deblurring path: a wall blurred in every frame deblurs faster; it leaves the mean; old "
+    "checkpoints load") {
     // A static wall of hard-edged cells seen by 6 frames, each blurred 4 px (8-bit), as a wall
     // that focus never reached. Adam moves each texel by about its learning rate, so the detail
     // the pillbox passed at a few percent comes back slowly through the texels alone; through
@@ -283,7 +302,8 @@ TEST_CASE("the deblurring path: a wall blurred in every frame deblurs faster; it
         namespace F = torch::nn::functional;
         torch::manual_seed(5);  // cells of 4 px: what a 4 px blur leaves of them can come back
         auto wall = F::interpolate(torch::rand({1, 3, d->height / 4, d->width / 4}),
-                                   F::InterpolateFuncOptions().size(std::vector<int64_t>{d->height, d->width})
+                                   F::InterpolateFuncOptions()
+                                       .size(std::vector<int64_t>{d->height, d->width})
                                        .mode(torch::kNearest))[0];
         auto in = lens_blur(wall.contiguous(), d->radius[0].contiguous(), d->blur);
         sharp = wall.unsqueeze(0).expand({d->frames, 3, d->height, d->width}).contiguous();
@@ -310,8 +330,8 @@ TEST_CASE("the deblurring path: a wall blurred in every frame deblurs faster; it
         return psnr_of(torch::stack(out).clamp(0, 1), sharp);
     };
     const double off = fit(false), on = fit(true);
-    MESSAGE("400 steps, sharp PSNR: input " << psnr_of(d->input, sharp) << " dB, texels alone " << off
-                                            << ", with the path " << on);
+    MESSAGE("400 steps, sharp PSNR: input " << psnr_of(d->input, sharp) << " dB, texels alone "
+                                            << off << ", with the path " << on);
     CHECK(on > off + 1.0);
     {
         // Left to the model, a fit with the path takes 4 frames a step and says so; without, 2.

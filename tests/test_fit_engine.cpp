@@ -34,7 +34,8 @@ TEST_CASE("fast fit of a tiny clip beats its input and exports every pass") {
     CHECK(out_psnr > in_psnr + 0.5);
     for (const auto& f : sharp) CHECK(count_nonfinite(f) == 0);
 
-    r = cli("export '" + c.project.string() + "' --what all --out '" + (c.dir / "all").string() + "'");
+    r = cli("export '" + c.project.string() + "' --what all --out '" + (c.dir / "all").string() +
+            "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
     for (const char* f : {"sharp/sharp_0007.png", "reblur/reblur_0000.png", "atlas/atlas_bg.png",
@@ -59,7 +60,8 @@ TEST_CASE("resume after kill -9 matches an uninterrupted run; same seed, same re
     REQUIRE(r.code == 0);
     auto again = export_sharp(c, "b");
     double same_seed = 0;
-    for (size_t i = 0; i < again.size(); ++i) same_seed = std::max(same_seed, max_abs_diff(again[i], uninterrupted[i]));
+    for (size_t i = 0; i < again.size(); ++i)
+        same_seed = std::max(same_seed, max_abs_diff(again[i], uninterrupted[i]));
     CHECK(same_seed == 0.0);
 
     // Checkpoint every step, kill -9 once a checkpoint past step 15 exists, then resume.
@@ -69,7 +71,9 @@ TEST_CASE("resume after kill -9 matches an uninterrupted run; same seed, same re
         "' --iters 40 --seed 5 --checkpoint-seconds 0" + coc +
         " >/dev/null 2>&1 & pid=$!; i=0; "
         "while [ $i -lt 600 ]; do "
-        "  s=$(grep -o '\"step\": *[0-9]*' '" + ckpt.string() + "' 2>/dev/null | grep -o '[0-9]*$'); "
+        "  s=$(grep -o '\"step\": *[0-9]*' '" +
+        ckpt.string() +
+        "' 2>/dev/null | grep -o '[0-9]*$'); "
         "  if [ -n \"$s\" ] && [ \"$s\" -ge 15 ]; then kill -9 $pid; echo killed at $s; break; fi; "
         "  sleep 0.05; i=$((i+1)); done; wait $pid; echo rc=$?)";
     fs::remove_all(c.project / "fit");
@@ -85,7 +89,8 @@ TEST_CASE("resume after kill -9 matches an uninterrupted run; same seed, same re
     CHECK(r.output.find("resumed at step") != std::string::npos);
     auto resumed = export_sharp(c, "c");
     double diff = 0;
-    for (size_t i = 0; i < resumed.size(); ++i) diff = std::max(diff, max_abs_diff(resumed[i], uninterrupted[i]));
+    for (size_t i = 0; i < resumed.size(); ++i)
+        diff = std::max(diff, max_abs_diff(resumed[i], uninterrupted[i]));
     MESSAGE("resumed vs uninterrupted: max abs diff " << diff);
     CHECK(diff < 1e-6);
 }
@@ -103,16 +108,19 @@ TEST_CASE("fit refuses bad inputs with messages naming the problem") {
     CHECK(r.output.find("coc_0003.exr") != std::string::npos);
     CHECK(r.output.find("missing") != std::string::npos);
     // --coc with the wrong size.
-    RunResult s = cli("synth --scene rack -o '" + (c.dir / "big").string() + "' --size 80x40 --frames 8");
+    RunResult s =
+        cli("synth --scene rack -o '" + (c.dir / "big").string() + "' --size 80x40 --frames 8");
     REQUIRE(s.code == 0);
-    r = cli("fit '" + c.project.string() + "' --iters 2 --coc '" + (c.dir / "big" / "coc_%04d.exr").string() + "'");
+    r = cli("fit '" + c.project.string() + "' --iters 2 --coc '" +
+            (c.dir / "big" / "coc_%04d.exr").string() + "'");
     CHECK(r.code != 0);
     CHECK(r.output.find("80x40") != std::string::npos);
     // Not a project / nothing fitted yet / resume without checkpoint.
     r = cli("fit '" + (c.dir / "nothing").string() + "' --iters 2");
     CHECK(r.code != 0);
     CHECK(r.output.find("nothing") != std::string::npos);
-    r = cli("export '" + c.project.string() + "' --what sharp --out '" + (c.dir / "x").string() + "'");
+    r = cli("export '" + c.project.string() + "' --what sharp --out '" + (c.dir / "x").string() +
+            "'");
     CHECK(r.code != 0);
     CHECK(r.output.find("not been fitted") != std::string::npos);
     r = cli("fit '" + c.project.string() + "' --resume --iters 2");
@@ -133,9 +141,11 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
     const int64_t T = 6, H = 36, W = 48;
     torch::manual_seed(0);
     auto clean = torch::rand({1, 3, H / 4, W / 4});
-    clean = torch::nn::functional::interpolate(
-        clean, torch::nn::functional::InterpolateFuncOptions().size(std::vector<int64_t>{H, W})
-                   .mode(torch::kBilinear).align_corners(false));
+    clean =
+        torch::nn::functional::interpolate(clean, torch::nn::functional::InterpolateFuncOptions()
+                                                      .size(std::vector<int64_t>{H, W})
+                                                      .mode(torch::kBilinear)
+                                                      .align_corners(false));
     auto make = [&] {
         auto d = std::make_shared<FitData>();
         d->frames = T, d->height = H, d->width = W;
@@ -180,7 +190,8 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
         return diff;
     };
     const double off = leak(0.0), on = leak(1.5);
-    MESSAGE("fallback weight of frame 2: patch " << fallback_in << ", left 6 columns at most " << fallback_out);
+    MESSAGE("fallback weight of frame 2: patch " << fallback_in << ", left 6 columns at most "
+                                                 << fallback_out);
     CHECK(fallback_in > 0.9);
     CHECK(fallback_out < 0.05);
     MESSAGE("square leaking into frame 0: robust off " << off << ", on " << on);

@@ -51,15 +51,17 @@ std::vector<Image> make_frames(int n, int w = 64, int h = 36) {
 void write_raw_oiio(const std::string& path, int w, int h, int nch, const std::vector<float>& px) {
     auto out = OIIO::ImageOutput::create(path);
     REQUIRE(out);
-    OIIO::ImageSpec spec(w, h, nch, path.find(".exr") != std::string::npos ? OIIO::TypeDesc::FLOAT
-                                                                          : OIIO::TypeDesc::UINT8);
+    OIIO::ImageSpec spec(
+        w, h, nch,
+        path.find(".exr") != std::string::npos ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8);
     REQUIRE(out->open(path, spec));
     REQUIRE(out->write_image(OIIO::TypeDesc::FLOAT, px.data()));
     out->close();
 }
 
 // Runs `refocus info` on `what` and checks it fails with a one-line message naming `names`.
-void expect_cli_error(const std::string& what, const std::string& names, const std::string& problem) {
+void expect_cli_error(const std::string& what, const std::string& names,
+                      const std::string& problem) {
     RunResult r = cli("info '" + what + "'");
     INFO(r.output);
     CHECK(r.code != 0);
@@ -77,8 +79,11 @@ TEST_CASE("lossless sequence round trips are bit-exact") {
         const char* format;
         int srgb_levels;  // 0: float storage
         bool half;
-    } cases[] = {{"png", 255, false}, {"png16", 65535, false}, {"tiff", 65535, false},
-                 {"exr", 0, true},    {"exr32", 0, false}};
+    } cases[] = {{"png", 255, false},
+                 {"png16", 65535, false},
+                 {"tiff", 65535, false},
+                 {"exr", 0, true},
+                 {"exr32", 0, false}};
     for (const auto& c : cases) {
         CAPTURE(c.format);
         std::vector<Image> expect;
@@ -150,8 +155,8 @@ TEST_CASE("mp4 round trip within codec error, and agrees with the PNG sequence")
 
 TEST_CASE("mp4 keeps flat colours within 2 code levels (BT.601 matrix on both sides)") {
     fs::path dir = scratch_dir("io_mp4_flat");
-    const float cols[4][3] = {{0.5f, 0.2f, 0.1f}, {0.05f, 0.6f, 0.3f}, {0.9f, 0.9f, 0.9f},
-                              {0.01f, 0.02f, 0.5f}};
+    const float cols[4][3] = {
+        {0.5f, 0.2f, 0.1f}, {0.05f, 0.6f, 0.3f}, {0.9f, 0.9f, 0.9f}, {0.01f, 0.02f, 0.5f}};
     {
         ClipWriter w((dir / "flat.mp4").string(), "flat", ClipFormat::Mp4);
         for (const auto& c : cols) {
@@ -229,7 +234,9 @@ TEST_CASE("printf patterns, folders, 16-bit and grey/RGBA inputs") {
 TEST_CASE("bad input: one line naming the file and the problem, non-zero exit") {
     fs::path dir = scratch_dir("io_bad");
 
-    SUBCASE("missing file") { expect_cli_error((dir / "nope.mp4").string(), "nope.mp4", "no such file"); }
+    SUBCASE("missing file") {
+        expect_cli_error((dir / "nope.mp4").string(), "nope.mp4", "no such file");
+    }
 
     SUBCASE("empty video file") {
         std::ofstream((dir / "empty.mp4").string()).close();
@@ -284,7 +291,8 @@ TEST_CASE("bad input: one line naming the file and the problem, non-zero exit") 
         write_png_sequence(dir / "mixed", {pattern_frame(32, 20, 0), pattern_frame(32, 20, 1)});
         write_image_file((dir / "mixed" / "frame_0002.png").string(), pattern_frame(30, 20, 2),
                          PixelFormat::Png8);
-        expect_cli_error((dir / "mixed").string(), "frame_0002.png", "differs from the first frame");
+        expect_cli_error((dir / "mixed").string(), "frame_0002.png",
+                         "differs from the first frame");
     }
 
     SUBCASE("gap in a numbered sequence") {
@@ -295,7 +303,8 @@ TEST_CASE("bad input: one line naming the file and the problem, non-zero exit") 
 
     SUBCASE("unsupported channel count") {
         fs::create_directories(dir / "two");
-        write_raw_oiio((dir / "two" / "f_0000.png").string(), 8, 8, 2, std::vector<float>(128, 0.5f));
+        write_raw_oiio((dir / "two" / "f_0000.png").string(), 8, 8, 2,
+                       std::vector<float>(128, 0.5f));
         expect_cli_error((dir / "two").string(), "f_0000.png", "unsupported channel count 2");
     }
 
@@ -306,7 +315,8 @@ TEST_CASE("bad input: one line naming the file and the problem, non-zero exit") 
         px[3 * (2 * 16 + 5) + 1] = std::numeric_limits<float>::quiet_NaN();  // pixel (5,2)
         px[10] = std::numeric_limits<float>::infinity();
         write_raw_oiio((dir / "nan" / "f_0000.exr").string(), 16, 16, 3, px);
-        RunResult r = cli("new '" + (dir / "nan").string() + "' -o '" + (dir / "p1").string() + "'");
+        RunResult r =
+            cli("new '" + (dir / "nan").string() + "' -o '" + (dir / "p1").string() + "'");
         INFO(r.output);
         CHECK(r.code != 0);
         CHECK(r.output.find("f_0000.exr") != std::string::npos);
@@ -316,8 +326,8 @@ TEST_CASE("bad input: one line naming the file and the problem, non-zero exit") 
         clean.nonfinite = NonFinitePolicy::Clean;
         auto f = read_all_frames((dir / "nan").string(), clean);
         CHECK(count_nonfinite(f[0]) == 0);
-        CHECK(f[0].at(5, 2, 1) == 0.0f);          // NaN → 0
-        CHECK(f[0].pixels[10] == 0.25f);          // +Inf → largest finite value
+        CHECK(f[0].at(5, 2, 1) == 0.0f);  // NaN → 0
+        CHECK(f[0].pixels[10] == 0.25f);  // +Inf → largest finite value
     }
 
     SUBCASE("a file that is not an image") {

@@ -13,10 +13,10 @@
 #include "util/error.h"
 
 using refocus::BlurKernel;
-using refocus::LensBlurParams;
 using refocus::coc_second_moment;
 using refocus::kernel_radius_for_coc;
 using refocus::lens_blur;
+using refocus::LensBlurParams;
 
 namespace {
 
@@ -33,7 +33,9 @@ LensBlurParams params_for(BlurKernel k, double beta = 2.0) {
     return p;
 }
 
-double max_abs(const torch::Tensor& t) { return t.abs().max().item<double>(); }
+double max_abs(const torch::Tensor& t) {
+    return t.abs().max().item<double>();
+}
 
 // A radius map with zeros, the identity range, the blend range, fractional and large values.
 torch::Tensor mixed_radius(int H, int W, double large, uint64_t seed) {
@@ -67,7 +69,8 @@ TEST_CASE("beta <= 1/e and bad parameters are refused with a clear error") {
     torch::Tensor img = torch::rand({3, 8, 8});
     torch::Tensor r = torch::full({8, 8}, 2.0f);
     for (double beta : {std::exp(-1.0), 0.36, 0.0, -2.0}) {
-        std::string msg = thrown_message([&] { lens_blur(img, r, params_for(BlurKernel::Disk, beta)); });
+        std::string msg =
+            thrown_message([&] { lens_blur(img, r, params_for(BlurKernel::Disk, beta)); });
         CHECK(msg.find("beta > 1/e") != std::string::npos);
     }
     CHECK_NOTHROW(lens_blur(img, r, params_for(BlurKernel::Disk, std::exp(-1.0) + 1e-6)));
@@ -139,11 +142,12 @@ TEST_CASE("radius gradient is finite at r = 0 and across the identity/blend boun
         torch::Tensor img = torch::rand({3, 12, 12}, torch::kDouble);
         for (double r0 : {0.0, 0.25, 0.25 + 1e-9, 0.3, 0.75}) {
             torch::Tensor r = torch::full({12, 12}, r0, torch::kDouble).requires_grad_(true);
-            lens_blur(img, r, params_for(k)).mul(torch::rand({3, 12, 12}, torch::kDouble))
+            lens_blur(img, r, params_for(k))
+                .mul(torch::rand({3, 12, 12}, torch::kDouble))
                 .sum()
                 .backward();
             CHECK(r.grad().isfinite().all().item<bool>());
-            if (r0 <= 0.25) CHECK(max_abs(r.grad()) == 0.0);  // identity: exactly flat
+            if (r0 <= 0.25) CHECK(max_abs(r.grad()) == 0.0);         // identity: exactly flat
             if (r0 == 0.25 + 1e-9) CHECK(max_abs(r.grad()) < 1e-6);  // C¹ blend starts flat
         }
     }
@@ -199,8 +203,9 @@ TEST_CASE("radius gradient matches finite differences on every pixel (float64)")
         for (int y = 0; y < H; ++y) {
             for (int x = 0; x < W; ++x) {
                 double v = ra[y][x];
-                if (v > 0.25 - h && v < 0.25 + h) continue;  // on the identity boundary (kink-free
-                                                             // but one-sided FD is not needed)
+                if (v > 0.25 - h && v < 0.25 + h)
+                    continue;  // on the identity boundary (kink-free
+                               // but one-sided FD is not needed)
                 ra[y][x] = v + h;
                 double lp = loss(img, rr, w, p);
                 ra[y][x] = std::max(0.0, v - h);
@@ -324,8 +329,10 @@ TEST_CASE("tensor-ops version agrees with the fast path, values and gradients") 
     for (BlurKernel k : kAllKernels) {
         CAPTURE(name(k));
         LensBlurParams p = params_for(k);
-        torch::Tensor a_img = img0.clone().requires_grad_(true), a_r = r0.clone().requires_grad_(true);
-        torch::Tensor b_img = img0.clone().requires_grad_(true), b_r = r0.clone().requires_grad_(true);
+        torch::Tensor a_img = img0.clone().requires_grad_(true),
+                      a_r = r0.clone().requires_grad_(true);
+        torch::Tensor b_img = img0.clone().requires_grad_(true),
+                      b_r = r0.clone().requires_grad_(true);
         torch::Tensor a = lens_blur(a_img, a_r, p);
         torch::Tensor b = refocus::lens_blur_tensor_ops(b_img, b_r, p);
         CHECK(max_abs(a - b) < 1e-12);
@@ -385,7 +392,8 @@ TEST_CASE("a circle of confusion becomes the kernel radius that spreads light as
     CHECK(coc_second_moment(0.0) == 0.0);
     // Inside one pixel (|a| < 1) each axis adds |a|: twice E|a| = 4c/3π over the disk.
     CHECK(coc_second_moment(0.2) == doctest::Approx(8 * 0.2 / (3 * M_PI)).epsilon(0.01));
-    for (double c : {3.0, 7.0, 12.0}) CHECK(coc_second_moment(c) == doctest::Approx(0.5 * c * c + 1.0 / 3.0).epsilon(0.002));
+    for (double c : {3.0, 7.0, 12.0})
+        CHECK(coc_second_moment(c) == doctest::Approx(0.5 * c * c + 1.0 / 3.0).epsilon(0.002));
     for (BlurKernel kernel : {BlurKernel::Disk, BlurKernel::Pillbox, BlurKernel::Gaussian}) {
         LensBlurParams p;
         p.kernel = kernel;
@@ -394,7 +402,8 @@ TEST_CASE("a circle of confusion becomes the kernel radius that spreads light as
             const double r = kernel_radius_for_coc(c, p);
             CHECK(r > last);  // monotone
             last = r;
-            const int n = 2 * int(c + 8 + 4 * p.kappa * c * (kernel == BlurKernel::Gaussian)) + 1, mid = n / 2;
+            const int n = 2 * int(c + 8 + 4 * p.kappa * c * (kernel == BlurKernel::Gaussian)) + 1,
+                      mid = n / 2;
             auto img = torch::zeros({1, n, n}, torch::kFloat64);
             img[0][mid][mid] = 1.0;
             auto psf = lens_blur(img, torch::full({n, n}, r, torch::kFloat64), p)[0];

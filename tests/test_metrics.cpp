@@ -56,7 +56,8 @@ TEST_CASE("SSIM of flat images: only the luminance term, by hand") {
     // MS-SSIM: every contrast-structure term is 1 (no variance), the coarsest scale keeps the
     // luminance term with exponent 0.1333 / Σw (Σw = 1.0001).
     Image a2(192, 192, 3, 100.0f), b2(192, 192, 3, 110.0f);
-    CHECK(ms_ssim_raw(a2, b2, 255) == doctest::Approx(std::pow(expect, 0.1333 / 1.0001)).epsilon(1e-9));
+    CHECK(ms_ssim_raw(a2, b2, 255) ==
+          doctest::Approx(std::pow(expect, 0.1333 / 1.0001)).epsilon(1e-9));
 }
 
 TEST_CASE("SSIM of a noisy copy follows the reference formula") {
@@ -79,7 +80,7 @@ TEST_CASE("tPSNR by hand") {
     std::vector<Image> gt, same_offset, flicker;
     for (int t = 0; t < 4; ++t) {
         gt.push_back(code_image(16, 16, 100 + 10 * t));
-        same_offset.push_back(code_image(16, 16, 103 + 10 * t));              // constant bias
+        same_offset.push_back(code_image(16, 16, 103 + 10 * t));                 // constant bias
         flicker.push_back(code_image(16, 16, 100 + 10 * t + (t % 2 ? 3 : -3)));  // ±3 alternation
     }
     // A constant bias does not flicker: consecutive differences match exactly.
@@ -110,7 +111,8 @@ TEST_CASE("error by spatial frequency band") {
                 for (int x = 0; x < g.width; ++x) m += g.at(x, y, c);
             m /= double(g.width) * g.height;
             for (int y = 0; y < g.height; ++y)
-                for (int x = 0; x < g.width; ++x) h.at(x, y, c) = float(m + 0.5 * (g.at(x, y, c) - m));
+                for (int x = 0; x < g.width; ++x)
+                    h.at(x, y, c) = float(m + 0.5 * (g.at(x, y, c) - m));
         }
         half.push_back(h);
     }

@@ -24,7 +24,8 @@ namespace {
 std::pair<double, double> first_last_psnr(const std::string& out) {
     std::regex re("reblur_psnr=([0-9.]+)");
     std::vector<double> v;
-    for (auto it = std::sregex_iterator(out.begin(), out.end(), re); it != std::sregex_iterator(); ++it)
+    for (auto it = std::sregex_iterator(out.begin(), out.end(), re); it != std::sregex_iterator();
+         ++it)
         v.push_back(std::stod((*it)[1]));
     if (v.empty()) return {0, 0};
     return {v.front(), v.back()};
@@ -34,7 +35,8 @@ std::pair<double, double> first_last_psnr(const std::string& out) {
 
 TEST_CASE("paper preset fits a tiny clip, exports, and resumes from a checkpoint exactly") {
     const fs::path dir = scratch_dir("paper_tiny");
-    RunResult r = cli("synth --scene rack -o '" + (dir / "clip").string() + "' --size 64x36 --frames 8 --seed 3");
+    RunResult r = cli("synth --scene rack -o '" + (dir / "clip").string() +
+                      "' --size 64x36 --frames 8 --seed 3");
     INFO(r.output);
     REQUIRE(r.code == 0);
     const fs::path proj = dir / "proj";
@@ -49,7 +51,8 @@ TEST_CASE("paper preset fits a tiny clip, exports, and resumes from a checkpoint
     MESSAGE("paper preset, tiny rack clip: reblur PSNR " << first << " -> " << last << " dB");
     CHECK(last > first);
 
-    r = cli("export '" + proj.string() + "' --what sharp --format exr32 --out '" + (dir / "sharp").string() + "'");
+    r = cli("export '" + proj.string() + "' --what sharp --format exr32 --out '" +
+            (dir / "sharp").string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
     auto sharp = read_all_frames((dir / "sharp" / "sharp_%04d.exr").string());
@@ -79,10 +82,9 @@ TEST_CASE("paper preset fits a tiny clip, exports, and resumes from a checkpoint
     for (const auto& f : input) flat.emplace_back(f.width, f.height, f.channels, float(in_mean));
     const double psnr_out = mean_psnr(sharp, gt), psnr_flat = mean_psnr(flat, gt);
     const double psnr_in = mean_psnr(input, gt);
-    MESSAGE("paper preset, tiny rack clip: mean " << out_mean << " (input " << in_mean << "), std "
-                                                  << out_std << " (input " << in_std << "), PSNR "
-                                                  << psnr_out << " dB (input " << psnr_in
-                                                  << ", flat " << psnr_flat << ")");
+    MESSAGE("paper preset, tiny rack clip: mean "
+            << out_mean << " (input " << in_mean << "), std " << out_std << " (input " << in_std
+            << "), PSNR " << psnr_out << " dB (input " << psnr_in << ", flat " << psnr_flat << ")");
     DOCTEST_CHECK(out_mean > 0.7 * in_mean);
     DOCTEST_CHECK(out_mean < 1.3 * in_mean);
     DOCTEST_CHECK(out_std > 0.8 * in_std);

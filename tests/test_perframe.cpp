@@ -92,10 +92,14 @@ torch::Tensor texture_frame(int w, int h, unsigned seed = 7) {
                         float c[3];
                         for (int ch = 0; ch < 3; ++ch) {
                             auto L = [&](int i, int j) {
-                                return lattice[(size_t(std::min(j, lh - 1)) * lw + std::min(i, lw - 1)) * 3 + ch];
+                                return lattice[(size_t(std::min(j, lh - 1)) * lw +
+                                                std::min(i, lw - 1)) *
+                                                   3 +
+                                               ch];
                             };
-                            const float v = (1 - ty) * ((1 - tx) * L(ix, iy) + tx * L(ix + 1, iy)) +
-                                            ty * ((1 - tx) * L(ix, iy + 1) + tx * L(ix + 1, iy + 1));
+                            const float v =
+                                (1 - ty) * ((1 - tx) * L(ix, iy) + tx * L(ix + 1, iy)) +
+                                ty * ((1 - tx) * L(ix, iy + 1) + tx * L(ix + 1, iy + 1));
                             c[ch] = v * v;
                         }
                         put(x, y, c[0], c[1], c[2]);
@@ -112,7 +116,9 @@ Image to_image(const torch::Tensor& chw) {
     return out;
 }
 
-double psnr_t(const torch::Tensor& a, const torch::Tensor& b) { return psnr(to_image(a), to_image(b)); }
+double psnr_t(const torch::Tensor& a, const torch::Tensor& b) {
+    return psnr(to_image(a), to_image(b));
+}
 
 // g = H(sharp) + n, n ~ N(0, σ²).
 torch::Tensor blur_and_noise(const torch::Tensor& sharp, const torch::Tensor& radius, double sigma,

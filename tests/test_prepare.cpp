@@ -248,8 +248,8 @@ TEST_CASE("camera motion: a wide lens panning keeps its perspective (homography,
             worst = std::max(worst, std::hypot(ex - b[i].x, ey - b[i].y));
         }
     }
-    MESSAGE("perspective pan: worst corner error " << worst << " px (an affine chain misses a corner by "
-                                                   << worst_affine << " px)");
+    MESSAGE("perspective pan: worst corner error "
+            << worst << " px (an affine chain misses a corner by " << worst_affine << " px)");
     CHECK(worst_affine > 3.0);
     CHECK(worst < 1.0);
 }
@@ -577,7 +577,8 @@ SynthOptions hunt_options() {
     so.frames = 16;
     return so;
 }
-void render_all(const SynthClip& clip, int n, std::vector<Image>& frames, std::vector<Image>* alpha = nullptr) {
+void render_all(const SynthClip& clip, int n, std::vector<Image>& frames,
+                std::vector<Image>* alpha = nullptr) {
     for (int t = 0; t < n; ++t) {
         SynthFrame f = clip.render(t);
         frames.push_back(std::move(f.input));
@@ -613,7 +614,8 @@ TEST_CASE("camera motion: the wall's motion, not a sharp subject's, when the wal
     }
     // Whole-frame homography consensus: 8.0 px; the outer ring's: 1.6 px; affine, weak pairs
     // interpolated: 0.8 px.
-    MESSAGE("hunt homographies: worst centre error " << worst << " px over " << so.frames << " frames");
+    MESSAGE("hunt homographies: worst centre error " << worst << " px over " << so.frames
+                                                     << " frames");
     CHECK(worst < 1.5);
 }
 
@@ -640,7 +642,8 @@ TEST_CASE("masks: a slow subject under hunting focus is found (synth hunt)") {
         const double iou = uni ? double(inter) / uni : 1.0;
         sum += iou, worst = std::min(worst, iou);
     }
-    MESSAGE("hunt auto mask IoU against the true alpha: mean " << sum / so.frames << ", worst frame " << worst);
+    MESSAGE("hunt auto mask IoU against the true alpha: mean " << sum / so.frames
+                                                               << ", worst frame " << worst);
     CHECK(sum / so.frames > 0.6);
     CHECK(worst > 0.3);
 }

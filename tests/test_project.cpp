@@ -89,17 +89,26 @@ TEST_CASE("project validation names the field") {
     const std::string good = read_text_file(p / "project.json");
     auto restore = [&] { std::ofstream(p / "project.json") << good; };
 
-    CHECK(load_error(p, [](json& j) { j["version"] = 99; }).find("newer Refocus") != std::string::npos);
+    CHECK(load_error(p, [](json& j) { j["version"] = 99; }).find("newer Refocus") !=
+          std::string::npos);
     restore();
-    CHECK(load_error(p, [](json& j) { j["clip"]["width"] = -3; }).find("'clip.width'") != std::string::npos);
+    CHECK(load_error(p, [](json& j) { j["clip"]["width"] = -3; }).find("'clip.width'") !=
+          std::string::npos);
     restore();
-    CHECK(load_error(p, [](json& j) { j["clip"].erase("frames"); }).find("'clip.frames' is missing") != std::string::npos);
+    CHECK(load_error(p, [](json& j) {
+              j["clip"].erase("frames");
+          }).find("'clip.frames' is missing") != std::string::npos);
     restore();
-    CHECK(load_error(p, [](json& j) { j["clip"]["fps"] = "fast"; }).find("'clip.fps' must be a number") != std::string::npos);
+    CHECK(load_error(p, [](json& j) {
+              j["clip"]["fps"] = "fast";
+          }).find("'clip.fps' must be a number") != std::string::npos);
     restore();
-    CHECK(load_error(p, [](json& j) { j["cache"]["frames"] = "/etc/frame_%d.exr"; }).find("'cache.frames'") != std::string::npos);
+    CHECK(load_error(p, [](json& j) {
+              j["cache"]["frames"] = "/etc/frame_%d.exr";
+          }).find("'cache.frames'") != std::string::npos);
     restore();
-    CHECK(load_error(p, [](json& j) { j["source"]["kind"] = "film"; }).find("'source.kind'") != std::string::npos);
+    CHECK(load_error(p, [](json& j) { j["source"]["kind"] = "film"; }).find("'source.kind'") !=
+          std::string::npos);
     restore();
     std::ofstream(p / "project.json") << "{ \"version\": 1, ";
     try {

@@ -35,11 +35,14 @@ TEST_CASE("radius from the clip as a focal stack matches the ground truth on a f
             }
     std::sort(err.begin(), err.end());
     const double median = err[err.size() / 2], mean_gt = sum_gt / err.size();
-    MESSAGE("focal-stack radius: median abs error " << median << " px (mean true radius " << mean_gt << " px)");
+    MESSAGE("focal-stack radius: median abs error " << median << " px (mean true radius " << mean_gt
+                                                    << " px)");
     CHECK(median < 0.35 * mean_gt);
 }
 
-TEST_CASE("focal-stack radius on a pan with fixed focus: content entering the frame and a subject never in focus are not read as more blur than they have") {
+TEST_CASE(
+    "focal-stack radius on a pan with fixed focus: content entering the frame and a subject never "
+    "in focus are not read as more blur than they have") {
     // Focus stays on the wall, so no view of any point is sharper than another: relative to its
     // sharpest view every pixel has radius ~0, and what blur there is comes from the floor
     // (edge_blur.h), which must not invent any: content entering the pan is compared with the
@@ -56,17 +59,23 @@ TEST_CASE("focal-stack radius on a pan with fixed focus: content entering the fr
     for (int t = 0; t < d->frames; ++t)
         for (int y = 0; y < d->height; ++y)
             for (int x = 0; x < d->width; ++x) {
-                const float o = d->radius[t][y][x].item<float>() - gt[t].at(x, y, 0), a = alpha[t].at(x, y, 0);
+                const float o = d->radius[t][y][x].item<float>() - gt[t].at(x, y, 0),
+                            a = alpha[t].at(x, y, 0);
                 over.push_back(o);
                 (a < 0.01f ? over_wall : over_edge).push_back(o);
             }
-    auto p99_of = [](std::vector<float>& v) { std::sort(v.begin(), v.end()); return v[v.size() * 99 / 100]; };
+    auto p99_of = [](std::vector<float>& v) {
+        std::sort(v.begin(), v.end());
+        return v[v.size() * 99 / 100];
+    };
     const float p99 = p99_of(over);
-    MESSAGE("pan: 99th percentile of (estimated - true radius) " << p99 << " px; wall " << p99_of(over_wall) << ", subject " << p99_of(over_edge));
+    MESSAGE("pan: 99th percentile of (estimated - true radius) "
+            << p99 << " px; wall " << p99_of(over_wall) << ", subject " << p99_of(over_edge));
     CHECK(p99 < 1.75f);
 }
 
-TEST_CASE("the stack's absolute floor: a wall and a subject never in focus read their blur, not 0") {
+TEST_CASE(
+    "the stack's absolute floor: a wall and a subject never in focus read their blur, not 0") {
     // Synth pan: focus fixed on the far wall, so the stack alone reads ~0 everywhere (above);
     // the truth is 0.4-3.1 px on the wall (by the row) and 5.7 px on the subject at this size.
     // The floor (edge_blur.h: each frame's isolated edges, a robust smooth surface per layer)
@@ -102,8 +111,9 @@ TEST_CASE("the stack's absolute floor: a wall and a subject never in focus read 
         e->abs_rel /= e->n;
         e->truth /= e->n;
     }
-    MESSAGE("wall (true radius > 1.5 px, mean " << wall.truth << "): mean abs error " << wall.abs_rel
-                                                  << " px relative only, " << wall.abs_floor << " with the floor");
+    MESSAGE("wall (true radius > 1.5 px, mean " << wall.truth << "): mean abs error "
+                                                << wall.abs_rel << " px relative only, "
+                                                << wall.abs_floor << " with the floor");
     MESSAGE("subject (mean " << subject.truth << "): " << subject.abs_rel << " px relative only, "
                              << subject.abs_floor << " with the floor");
     // 8 frames at this size hold few isolated edges; synth pan at 320x180x30 reads the wall to
@@ -112,7 +122,9 @@ TEST_CASE("the stack's absolute floor: a wall and a subject never in focus read 
     CHECK(subject.abs_floor < 0.6 * subject.abs_rel);
 }
 
-TEST_CASE("the stack's absolute floor past what edges measure: a wall blurred 5-9 px is read from tile spectra, without holes") {
+TEST_CASE(
+    "the stack's absolute floor past what edges measure: a wall blurred 5-9 px is read from tile "
+    "spectra, without holes") {
     // Synth walkout: focus stays on the subject's first depth, the wall is blurred 9.3 px at the
     // top to 5.3 at the bottom in every frame. Edges read it 30% low (edge_blur.h), so the floor
     // comes from tile spectra (spectral_blur.h): a plane over the tiles' readings, held as a least
@@ -140,13 +152,15 @@ TEST_CASE("the stack's absolute floor past what edges measure: a wall blurred 5-
             }
     REQUIRE(!ratio.empty());
     std::sort(ratio.begin(), ratio.end());
-    const double p01 = ratio[ratio.size() / 100], p50 = ratio[ratio.size() / 2], p95 = ratio[ratio.size() * 95 / 100],
-                 p99 = ratio[ratio.size() * 99 / 100];
-    MESSAGE("wall (mean " << truth / ratio.size() << " px): mean abs error " << abs_err / ratio.size()
-                          << " px; estimate / truth at the 1st, 50th, 95th, 99th percentile " << p01 << ", " << p50
-                          << ", " << p95 << ", " << p99);
-    // 8 frames read it to 0.25 px, 30 frames (two layers) to 0.09-0.14 (docs/method.md, Radius estimation); a radius 15% off the
-    // truth at this blur costs more than the whole gain (docs/method.md, Radius estimation).
+    const double p01 = ratio[ratio.size() / 100], p50 = ratio[ratio.size() / 2],
+                 p95 = ratio[ratio.size() * 95 / 100], p99 = ratio[ratio.size() * 99 / 100];
+    MESSAGE("wall (mean " << truth / ratio.size() << " px): mean abs error "
+                          << abs_err / ratio.size()
+                          << " px; estimate / truth at the 1st, 50th, 95th, 99th percentile " << p01
+                          << ", " << p50 << ", " << p95 << ", " << p99);
+    // 8 frames read it to 0.25 px, 30 frames (two layers) to 0.09-0.14 (docs/method.md, Radius
+    // estimation); a radius 15% off the truth at this blur costs more than the whole gain
+    // (docs/method.md, Radius estimation).
     CHECK(abs_err / ratio.size() < 0.5);
     CHECK(p50 > 0.93);
     CHECK(p50 < 1.05);
@@ -165,7 +179,9 @@ static FitData split_over_ramp(int frames, int height, int width, double slope,
     FitData d;
     d.frames = frames, d.height = height, d.width = width;
     d.has_subject = true;
-    ramp = (1.0 + torch::arange(width, torch::kFloat32) * slope).view({1, 1, width}).expand({frames, height, width});
+    ramp = (1.0 + torch::arange(width, torch::kFloat32) * slope)
+               .view({1, 1, width})
+               .expand({frames, height, width});
     d.radius = ramp.clone();
     d.radius[0].narrow(0, subject[0], subject[1]).narrow(1, subject[2], subject[3]).fill_(r);
     d.mask = torch::zeros({frames, 1, height, width});
@@ -174,7 +190,9 @@ static FitData split_over_ramp(int frames, int height, int width, double slope,
     return d;
 }
 
-TEST_CASE("each layer's radius: the subject's spreads past its silhouette, the wall's continues behind it") {
+TEST_CASE(
+    "each layer's radius: the subject's spreads past its silhouette, the wall's continues behind "
+    "it") {
     // Two frames 40x30: a 12x10 subject at radius 5 in front of a wall whose radius ramps
     // 1 → 2.45 px left to right; frame 1 has no subject.
     torch::Tensor ramp;
@@ -182,7 +200,8 @@ TEST_CASE("each layer's radius: the subject's spreads past its silhouette, the w
     REQUIRE(d.radius_fg.defined());
     REQUIRE(d.radius_bg.defined());
     // Where each layer is sure (2 px inside its own region) it keeps the map as given.
-    CHECK(torch::allclose(d.radius_fg[0].narrow(0, 12, 6).narrow(1, 16, 8), torch::full({6, 8}, 5.0f)));
+    CHECK(torch::allclose(d.radius_fg[0].narrow(0, 12, 6).narrow(1, 16, 8),
+                          torch::full({6, 8}, 5.0f)));
     CHECK(torch::allclose(d.radius_bg[0].narrow(0, 0, 8), ramp[0].narrow(0, 0, 8)));
     // The subject's radius reaches past its edge (its blurred edge scatters over the wall).
     CHECK(d.radius_fg[0][15][10].item<float>() == doctest::Approx(5.0).epsilon(0.02));
@@ -201,7 +220,9 @@ TEST_CASE("each layer's radius: the subject's spreads past its silhouette, the w
     CHECK(d.layer_radius(true).data_ptr() == d.radius.data_ptr());
 }
 
-TEST_CASE("each layer's radius from a blob of a mask: the rim keeps the subject's radius, a missed part the wall's") {
+TEST_CASE(
+    "each layer's radius from a blob of a mask: the rim keeps the subject's radius, a missed part "
+    "the wall's") {
     // One frame 60x50: a 16x15 subject at radius 6 (rows 15-29, columns 20-35) in front of a wall
     // whose radius ramps 1 -> 2.5 px left to right. Its automatic mask is a blob 3 px wider on
     // top, left and right (wall pixels, the wall's radius) that misses its bottom 4 rows.
@@ -220,7 +241,8 @@ TEST_CASE("each layer's radius from a blob of a mask: the rim keeps the subject'
     CHECK(torch::allclose(d.radius_bg[0].narrow(0, 40, 10), ramp[0].narrow(0, 40, 10)));
 }
 
-TEST_CASE("the stack's wall behind a sharp subject that walked off: seen blurred, it keeps its floor") {
+TEST_CASE(
+    "the stack's wall behind a sharp subject that walked off: seen blurred, it keeps its floor") {
     // A wall of flat blocks blurred 3 px (never in focus) and a sharp, high-contrast subject
     // crossing it. The wall's composite weighs its own views against the sharpest of them; against
     // every view's, the points the subject had covered kept weights of (contrast ratio)^8 ~ 0
@@ -231,8 +253,9 @@ TEST_CASE("the stack's wall behind a sharp subject that walked off: seen blurred
     LensBlurParams bp;
     bp.kernel = BlurKernel::Pillbox;
     auto blocks = torch::rand({3, H / 8, W / 8}) * 0.3 + 0.3;
-    auto wall = lens_blur(torch::repeat_interleave(torch::repeat_interleave(blocks, 8, 1), 8, 2).contiguous(),
-                          torch::full({H, W}, 3.0f), bp);
+    auto wall = lens_blur(
+        torch::repeat_interleave(torch::repeat_interleave(blocks, 8, 1), 8, 2).contiguous(),
+        torch::full({H, W}, 3.0f), bp);
     auto ys = torch::arange(H).view({H, 1}), xs = torch::arange(W).view({1, W});
     auto checker = ((ys / 2 + xs / 2) % 2).to(torch::kFloat32).expand({3, H, W}) * 0.95 + 0.02;
     FitData d;
@@ -241,7 +264,9 @@ TEST_CASE("the stack's wall behind a sharp subject that walked off: seen blurred
     std::vector<torch::Tensor> frames, masks;
     for (int t = 0; t < T; ++t) {
         const int x0 = 6 + 8 * t;  // 24x24, 8 px a frame
-        auto m = ((ys >= 20) & (ys < 44) & (xs >= x0) & (xs < x0 + 24)).to(torch::kFloat32).view({1, H, W});
+        auto m = ((ys >= 20) & (ys < 44) & (xs >= x0) & (xs < x0 + 24))
+                     .to(torch::kFloat32)
+                     .view({1, H, W});
         auto subject = torch::roll(checker, {8 * t}, {2});  // its texture moves with it
         frames.push_back(m * subject + (1 - m) * wall);
         masks.push_back(m);
@@ -254,7 +279,8 @@ TEST_CASE("the stack's wall behind a sharp subject that walked off: seen blurred
     // The last frame's wall where the subject stood in the first (x 6-29, clear of it by then).
     auto seen_later = est[T - 1].narrow(0, 24, 16).narrow(1, 8, 20);
     auto elsewhere = est[T - 1].narrow(0, 4, 12).narrow(1, 8, 80);
-    MESSAGE("wall behind the subject's first place: " << seen_later.mean().item<float>() << " px (min "
-            << seen_later.min().item<float>() << "); elsewhere " << elsewhere.mean().item<float>() << " px; truth 3");
+    MESSAGE("wall behind the subject's first place: "
+            << seen_later.mean().item<float>() << " px (min " << seen_later.min().item<float>()
+            << "); elsewhere " << elsewhere.mean().item<float>() << " px; truth 3");
     CHECK(seen_later.min().item<float>() > 0.6f * elsewhere.mean().item<float>());
 }

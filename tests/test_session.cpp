@@ -21,7 +21,8 @@ namespace {
 
 fs::path tiny_project(const std::string& name) {
     fs::path dir = scratch_dir(name);
-    RunResult r = cli("synth --scene tripod -o '" + (dir / "clip").string() + "' --size 64x36 --frames 6 --seed 2");
+    RunResult r = cli("synth --scene tripod -o '" + (dir / "clip").string() +
+                      "' --size 64x36 --frames 6 --seed 2");
     INFO(r.output);
     REQUIRE(r.code == 0);
     create_project((dir / "clip/input_%04d.png").string(), dir / "proj", {});
@@ -41,7 +42,8 @@ bool wait_for(P pred, double seconds = 120.0) {
 
 bool idle(const FitWorker& w) {
     auto s = w.status();
-    return !s.busy && s.state != FitWorker::State::Preparing && s.state != FitWorker::State::Fitting;
+    return !s.busy && s.state != FitWorker::State::Preparing &&
+           s.state != FitWorker::State::Fitting;
 }
 
 }  // namespace
@@ -122,8 +124,9 @@ TEST_CASE("document: save, autosave and recovery, save as, recent list") {
         }
         return "";
     };
-    CHECK(message_of([&] { doc.save_as_target((dir / "copy" / "inner").string()); }).find("inside the project") !=
-          std::string::npos);
+    CHECK(message_of([&] {
+              doc.save_as_target((dir / "copy" / "inner").string());
+          }).find("inside the project") != std::string::npos);
     fs::create_directories(doc.project().dir / ".autosave");
     write_file_atomic(doc.project().dir / ".autosave" / "project.json", "{}");
     int calls = 0, total = -1;
@@ -138,7 +141,8 @@ TEST_CASE("document: save, autosave and recovery, save as, recent list") {
     CHECK(fs::exists(dir / "copy2" / "frames"));
     CHECK_FALSE(fs::exists(dir / "copy2" / ".autosave"));
     CHECK(message_of([&] {
-              StudioDoc::copy_project_files(doc.project().dir, dir / "copy3", [](int i, int) { return i < 1; });
+              StudioDoc::copy_project_files(doc.project().dir, dir / "copy3",
+                                            [](int i, int) { return i < 1; });
           }).find("cancelled") != std::string::npos);
     CHECK(doc.project().dir == fs::absolute(dir / "copy"));
     doc.finish_save_as(fs::absolute(dir / "copy2"));
@@ -223,7 +227,9 @@ TEST_CASE("fit worker: fit on its thread, render between steps, stop keeps the w
         const int64_t fitted = after.sections.at("fit").at("status").at("step").get<int64_t>();
         CHECK(fitted == w.status().snap.step);
         doc.save();  // a later save keeps the fit's status
-        CHECK(Project::load(dir / "proj").sections.at("fit").at("status").at("step").get<int64_t>() == fitted);
+        CHECK(
+            Project::load(dir / "proj").sections.at("fit").at("status").at("step").get<int64_t>() ==
+            fitted);
     }
 
     // A job reports its outcome; errors in jobs land in the status, the worker lives on.

@@ -28,14 +28,20 @@ TEST_CASE("settings: a value is checked for its type and range, and stored canon
     CHECK(s.value("fast.lr_atlas") == "0.02");
     CHECK(s.value("fast.deblur_path") == "false");
     CHECK(s.value("fast.warp_cell_px") == "16");
-    CHECK_THROWS_WITH_AS(s.set("fast.lr_atlas", "fast"), doctest::Contains("not a finite number"), Error);
-    CHECK_THROWS_WITH_AS(s.set("fast.lr_atlas", "nan"), doctest::Contains("not a finite number"), Error);
-    CHECK_THROWS_WITH_AS(s.set("fast.lr_atlas", "-1"), doctest::Contains("out of range [0, 10]"), Error);
-    CHECK_THROWS_WITH_AS(s.set("fast.warp_cell_px", "16.5"), doctest::Contains("not an integer"), Error);
-    CHECK_THROWS_WITH_AS(s.set("fast.deblur_path", "maybe"), doctest::Contains("not a bool"), Error);
+    CHECK_THROWS_WITH_AS(s.set("fast.lr_atlas", "fast"), doctest::Contains("not a finite number"),
+                         Error);
+    CHECK_THROWS_WITH_AS(s.set("fast.lr_atlas", "nan"), doctest::Contains("not a finite number"),
+                         Error);
+    CHECK_THROWS_WITH_AS(s.set("fast.lr_atlas", "-1"), doctest::Contains("out of range [0, 10]"),
+                         Error);
+    CHECK_THROWS_WITH_AS(s.set("fast.warp_cell_px", "16.5"), doctest::Contains("not an integer"),
+                         Error);
+    CHECK_THROWS_WITH_AS(s.set("fast.deblur_path", "maybe"), doctest::Contains("not a bool"),
+                         Error);
     CHECK_THROWS_WITH_AS(s.set("fit.kernel", "gauss"), doctest::Contains("pillbox|disk"), Error);
     // An unknown name lists the valid ones.
-    CHECK_THROWS_WITH_AS(s.set("fast.lr_atlass", "1"), doctest::Contains("valid: fit.w_reco"), Error);
+    CHECK_THROWS_WITH_AS(s.set("fast.lr_atlass", "1"), doctest::Contains("valid: fit.w_reco"),
+                         Error);
     CHECK_THROWS_WITH_AS(s.set_assignment("fast.lr_atlas"), doctest::Contains("name=value"), Error);
     CHECK(s.values().size() == 4);  // refused values leave the last good one
 }
@@ -70,8 +76,9 @@ TEST_CASE("settings: JSON round trip, and bad JSON names the setting") {
     back.set_json(s.to_json(), "project.json: fit.settings");
     CHECK(back.values() == s.values());
     Settings bad;
-    CHECK_THROWS_WITH_AS(bad.set_json(nlohmann::json{{"fast.lr_atlas", "x"}}, "p.json: fit.settings"),
-                         doctest::Contains("p.json: fit.settings: setting fast.lr_atlas"), Error);
+    CHECK_THROWS_WITH_AS(
+        bad.set_json(nlohmann::json{{"fast.lr_atlas", "x"}}, "p.json: fit.settings"),
+        doctest::Contains("p.json: fit.settings: setting fast.lr_atlas"), Error);
     CHECK_THROWS_WITH_AS(bad.set_json(nlohmann::json::array(), "p.json: fit.settings"),
                          doctest::Contains("must be an object"), Error);
     CHECK_THROWS_WITH_AS(bad.set_json(nlohmann::json{{"fast.lr_atlas", {1, 2}}}, "p.json"),
@@ -94,7 +101,8 @@ TEST_CASE("presets: one table; unknown names list it") {
     CHECK(preset_names() == "fast|paper|perframe");
     CHECK(find_preset("perframe").has_atlas == false);
     CHECK(find_preset("fast").has_atlas);
-    CHECK_THROWS_WITH_AS(find_preset("quick"), doctest::Contains("use fast, paper, perframe"), Error);
+    CHECK_THROWS_WITH_AS(find_preset("quick"), doctest::Contains("use fast, paper, perframe"),
+                         Error);
     auto d = tiny_two_layer_data(3);
     CHECK_THROWS_AS(make_model("quick", *d, 1), Error);
     FitOptions o;
@@ -172,8 +180,8 @@ TEST_CASE("perframe: a model that steps itself, one frame a step; older checkpoi
     j["version"] = 99;
     write_file_atomic(dir / "checkpoint.json", j.dump());
     FitEngine n(d, o);
-    CHECK_THROWS_WITH_AS(n.load_checkpoint(dir), doctest::Contains("checkpoint.json: checkpoint from a newer"),
-                         Error);
+    CHECK_THROWS_WITH_AS(n.load_checkpoint(dir),
+                         doctest::Contains("checkpoint.json: checkpoint from a newer"), Error);
 }
 
 TEST_CASE("cli: --list-settings, --set on fit and bench fit, --debug") {
@@ -181,14 +189,17 @@ TEST_CASE("cli: --list-settings, --set on fit and bench fit, --debug") {
     CHECK(r.code == 0);
     CHECK(r.output.find("radius.floor_max = 4.5") != std::string::npos);
     const fs::path dir = scratch_dir("cli_settings");
-    r = cli("synth --scene tripod -o '" + (dir / "clip").string() + "' --size 48x32 --frames 4 --seed 3");
+    r = cli("synth --scene tripod -o '" + (dir / "clip").string() +
+            "' --size 48x32 --frames 4 --seed 3");
     REQUIRE(r.code == 0);
-    r = cli("new '" + (dir / "clip" / "input_%04d.png").string() + "' -o '" + (dir / "p").string() + "'");
+    r = cli("new '" + (dir / "clip" / "input_%04d.png").string() + "' -o '" + (dir / "p").string() +
+            "'");
     REQUIRE(r.code == 0);
     r = cli("fit '" + (dir / "p").string() + "' --iters 2 --set fast.nope=1");
     CHECK(r.code != 0);
     CHECK(r.output.find("unknown setting 'fast.nope'") != std::string::npos);
-    r = cli("fit '" + (dir / "p").string() + "' --iters 2 --set fast.lr_atlas=0.02 --set fit.robust_c=2");
+    r = cli("fit '" + (dir / "p").string() +
+            "' --iters 2 --set fast.lr_atlas=0.02 --set fit.robust_c=2");
     CHECK(r.code == 0);
     const auto j = nlohmann::json::parse(read_text_file(dir / "p" / "project.json"));
     CHECK(j["fit"]["settings"]["fast.lr_atlas"] == 0.02);
@@ -201,8 +212,9 @@ TEST_CASE("cli: --list-settings, --set on fit and bench fit, --debug") {
     r = cli("fit '" + (dir / "p").string() + "' --iters 1 --debug nonsense");
     CHECK(r.code != 0);
     CHECK(r.output.find("--debug: unknown 'nonsense'") != std::string::npos);
-    r = cli("bench fit --clip '" + (dir / "clip").string() + "' --iters 1 --minutes 100 --at 100 --work '" +
-            (dir / "bench").string() + "' --set nope=1");
+    r = cli("bench fit --clip '" + (dir / "clip").string() +
+            "' --iters 1 --minutes 100 --at 100 --work '" + (dir / "bench").string() +
+            "' --set nope=1");
     CHECK(r.code != 0);
     CHECK(r.output.find("unknown setting 'nope'") != std::string::npos);
 }

@@ -71,16 +71,20 @@ TEST_CASE("spectral blur: textures blurred by 5-10 px read their radius") {
             auto s = measure_spectral_blur(blur8(tex, r), allowed, pillbox());
             REQUIRE(s.size() >= 20);
             const double m = s.radius.median().item<double>();
-            const double within = ((s.radius - r).abs() < 0.1 * r).to(torch::kFloat32).mean().item<double>();
-            MESSAGE(std::string(kind == 0 ? "pink" : "glyphs") << " r=" << r << ": median " << m << " px, " << s.size() << " of "
-                                                    << s.tiles << " tiles, " << within * 100 << "% within 10%");
+            const double within =
+                ((s.radius - r).abs() < 0.1 * r).to(torch::kFloat32).mean().item<double>();
+            MESSAGE(std::string(kind == 0 ? "pink" : "glyphs")
+                    << " r=" << r << ": median " << m << " px, " << s.size() << " of " << s.tiles
+                    << " tiles, " << within * 100 << "% within 10%");
             CHECK(std::abs(m - r) < 0.05 * r);
             CHECK(within > 0.6);
         }
     }
 }
 
-TEST_CASE("spectral blur: only tiles wholly inside `allowed` are read; out-of-range blur gives no reading") {
+TEST_CASE(
+    "spectral blur: only tiles wholly inside `allowed` are read; out-of-range blur gives no "
+    "reading") {
     const int H = 120, W = 320;
     auto tex = blur8(pink_texture(H, W, 7), 6.0);
     auto allowed = torch::ones({H, W}, torch::kBool);
@@ -89,11 +93,14 @@ TEST_CASE("spectral blur: only tiles wholly inside `allowed` are read; out-of-ra
     REQUIRE(s.tiles > 0);
     for (int64_t i = 0; i < s.size(); ++i) {
         const double x = s.x[i].item<double>();
-        CHECK((x + 64 <= 150 || x - 64 >= 160));  // tile_w 128: its half-width each side of the centre
+        CHECK((x + 64 <= 150 ||
+               x - 64 >= 160));  // tile_w 128: its half-width each side of the centre
     }
     // A sharp texture: the evidence keeps falling toward the lower end, so no tile reads.
-    auto sharp = measure_spectral_blur(blur8(pink_texture(H, W, 7), 0.0), torch::ones({H, W}, torch::kBool), pillbox());
-    MESSAGE("sharp texture: " << sharp.size() << " readings of " << sharp.tiles << " tiles: " << sharp.radius);
+    auto sharp = measure_spectral_blur(blur8(pink_texture(H, W, 7), 0.0),
+                                       torch::ones({H, W}, torch::kBool), pillbox());
+    MESSAGE("sharp texture: " << sharp.size() << " readings of " << sharp.tiles
+                              << " tiles: " << sharp.radius);
     CHECK(sharp.size() == 0);
     // Nothing allowed: no tile.
     auto none = measure_spectral_blur(tex, torch::zeros({H, W}, torch::kBool), pillbox());
@@ -105,11 +112,15 @@ TEST_CASE("spectral blur: a tile too small for the largest kernel is an error") 
     SpectralBlurOptions o;
     o.tile_h = 16;
     o.tile_w = 16;
-    CHECK_THROWS_AS(measure_spectral_blur(torch::zeros({32, 32}), torch::ones({32, 32}), pillbox(), o), Error);
+    CHECK_THROWS_AS(
+        measure_spectral_blur(torch::zeros({32, 32}), torch::ones({32, 32}), pillbox(), o), Error);
 }
 
-TEST_CASE("spectral blur: a frame past max_width is read at a fraction of its size, readings scaled back") {
-    // 960x540, blurred by 21 px: read at 1/2 size (10.5 px there), places and radii in full-size px.
+TEST_CASE(
+    "spectral blur: a frame past max_width is read at a fraction of its size, readings scaled "
+    "back") {
+    // 960x540, blurred by 21 px: read at 1/2 size (10.5 px there), places and radii in full-size
+    // px.
     const int H = 540, W = 960;
     auto tex = blur8(pink_texture(H, W, 11), 21.0);
     auto allowed = torch::ones({H, W}, torch::kBool);
@@ -117,9 +128,11 @@ TEST_CASE("spectral blur: a frame past max_width is read at a fraction of its si
     auto s = measure_spectral_blur(tex, allowed, pillbox());
     REQUIRE(s.size() >= 20);
     const double m = s.radius.median().item<double>();
-    MESSAGE("960x540 blurred by 21 px: median " << m << " px, " << s.size() << " of " << s.tiles << " tiles");
+    MESSAGE("960x540 blurred by 21 px: median " << m << " px, " << s.size() << " of " << s.tiles
+                                                << " tiles");
     CHECK(std::abs(m - 21.0) < 0.05 * 21.0);
     CHECK(s.tiles <= SpectralBlurOptions{}.max_tiles);
-    CHECK(s.x.min().item<double>() - 128 >= 300 - 1);  // a tile's half-width (64 px at 1/2 size) past the edge
+    CHECK(s.x.min().item<double>() - 128 >=
+          300 - 1);  // a tile's half-width (64 px at 1/2 size) past the edge
     CHECK(s.x.max().item<double>() + 128 <= W);
 }

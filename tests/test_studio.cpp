@@ -26,8 +26,8 @@ TEST_CASE("studio renders frame N of a project into its viewer") {
     write_png_sequence(dir / "seq", frames);
     Project p = create_project((dir / "seq").string(), dir / "proj", {});
     const fs::path shot = dir / "shot.png";
-    RunResult r = run("xvfb-run -a -s '-screen 0 800x600x24' " + std::string(REFOCUS_STUDIO) + " '" +
-                      (dir / "proj").string() + "' --size 800x600 --frame 4 --screenshot '" +
+    RunResult r = run("xvfb-run -a -s '-screen 0 800x600x24' " + std::string(REFOCUS_STUDIO) +
+                      " '" + (dir / "proj").string() + "' --size 800x600 --frame 4 --screenshot '" +
                       shot.string() + "' --exit-after 4");
     INFO(r.output);
     REQUIRE(r.code == 0);
@@ -61,8 +61,8 @@ TEST_CASE("studio renders frame N of a project into its viewer") {
 TEST_CASE("studio reports a bad project path and exits non-zero") {
     if (run("command -v xvfb-run").code != 0) return;
     fs::path dir = scratch_dir("studio_bad");
-    RunResult r = run("xvfb-run -a " + std::string(REFOCUS_STUDIO) + " '" + (dir / "missing.mp4").string() +
-                      "' --exit-after 2");
+    RunResult r = run("xvfb-run -a " + std::string(REFOCUS_STUDIO) + " '" +
+                      (dir / "missing.mp4").string() + "' --exit-after 2");
     CHECK(r.code != 0);
     CHECK(r.output.find("missing.mp4") != std::string::npos);
 }
@@ -95,7 +95,8 @@ TEST_CASE("scripted studio session: new, fit, paint, keyframes, export, save, re
     // Export: frames 0..2 of the sharp plate and of the refocused video, nothing more.
     for (const char* what : {"sharp", "refocus"})
         for (int i = 0; i < 4; ++i) {
-            const fs::path f = dir / "export" / what / (std::string(what) + "_000" + std::to_string(i) + ".png");
+            const fs::path f =
+                dir / "export" / what / (std::string(what) + "_000" + std::to_string(i) + ".png");
             CHECK_MESSAGE(fs::exists(f) == (i < 3), f.string());
         }
     // The paint on the background atlas shows in the exported sharp frame, not in the input.
@@ -114,7 +115,8 @@ TEST_CASE("scripted studio session: new, fit, paint, keyframes, export, save, re
     Image refocused = read_image_file((dir / "export/refocus/refocus_0002.png").string()).image;
     Image sharp2 = read_image_file((dir / "export/sharp/sharp_0002.png").string()).image;
     double diff = 0;
-    for (size_t i = 0; i < sharp2.pixels.size(); ++i) diff += std::abs(sharp2.pixels[i] - refocused.pixels[i]);
+    for (size_t i = 0; i < sharp2.pixels.size(); ++i)
+        diff += std::abs(sharp2.pixels[i] - refocused.pixels[i]);
     CHECK(diff / sharp2.pixels.size() > 0.005);
 
     // Saved work: keyframes and edits in the project.
@@ -142,10 +144,12 @@ TEST_CASE("scripted studio session: new, fit, paint, keyframes, export, save, re
     int close = 0, total = 0;
     for (int y = 5; y < sharp.height; y += 20)
         for (int x = 5; x < sharp.width; x += 20) {
-            const int sx = int(x0 + (x + 0.5) * w / sharp.width), sy = int(y0 + (y + 0.5) * h / sharp.height);
+            const int sx = int(x0 + (x + 0.5) * w / sharp.width),
+                      sy = int(y0 + (y + 0.5) * h / sharp.height);
             double d = 0;
             for (int c = 0; c < 3; ++c)
-                d += std::abs(shot.at(sx, sy, c) - linear_to_srgb(sharp.at(x, y, c)));  // shot: sRGB
+                d +=
+                    std::abs(shot.at(sx, sy, c) - linear_to_srgb(sharp.at(x, y, c)));  // shot: sRGB
             close += d / 3 < 0.08;
             ++total;
         }

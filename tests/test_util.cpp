@@ -38,7 +38,9 @@ RunResult run(const std::string& command) {
     return r;
 }
 
-RunResult cli(const std::string& args) { return run(std::string(REFOCUS_CLI) + " " + args); }
+RunResult cli(const std::string& args) {
+    return run(std::string(REFOCUS_CLI) + " " + args);
+}
 
 Image pattern_frame(int w, int h, int t, unsigned seed) {
     Image img(w, h, 3);
@@ -83,8 +85,8 @@ TinyClip make_tiny(const std::string& name, const std::string& scene, const std:
     TinyClip c;
     c.dir = scratch_dir(name);
     c.clip = c.dir / "clip";
-    RunResult r = cli("synth --scene " + scene + " -o '" + c.clip.string() +
-                      "' --size " + size + " --frames 8 --seed 3");
+    RunResult r = cli("synth --scene " + scene + " -o '" + c.clip.string() + "' --size " + size +
+                      " --frames 8 --seed 3");
     INFO(r.output);
     REQUIRE(r.code == 0);
     c.project = c.dir / "proj";

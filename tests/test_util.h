@@ -31,7 +31,8 @@ RunResult cli(const std::string& args);
 Image pattern_frame(int w, int h, int t, unsigned seed = 1);
 
 // Writes `frames` as sRGB PNGs `<dir>/frame_%04d.png` (8 or 16 bit).
-void write_png_sequence(const fs::path& dir, const std::vector<Image>& frames, bool sixteen = false);
+void write_png_sequence(const fs::path& dir, const std::vector<Image>& frames,
+                        bool sixteen = false);
 
 // Max absolute difference.
 double max_abs_diff(const Image& a, const Image& b);

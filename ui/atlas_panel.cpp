@@ -10,7 +10,8 @@ namespace refocus {
 
 namespace {
 const char* kLayerLabel[2] = {"Background", "Foreground"};
-const PixelFormat kExportFormats[3] = {PixelFormat::Png8, PixelFormat::Tiff16, PixelFormat::ExrHalf};
+const PixelFormat kExportFormats[3] = {PixelFormat::Png8, PixelFormat::Tiff16,
+                                       PixelFormat::ExrHalf};
 const char* kExportNames[3] = {"PNG", "TIFF 16", "EXR"};
 }  // namespace
 
@@ -115,7 +116,8 @@ void AtlasPanel::draw_controls(AtlasEditor& ed) {
     ImGui::SameLine();
     if (ImGui::Button(m_picking ? "Picking... (I)" : "Pick (I)")) m_picking = !m_picking;
     ImGui::SetNextItemWidth(180);
-    ImGui::SliderFloat("size", &m_brush.size, 1.0f, 256.0f, "%.0f px", ImGuiSliderFlags_Logarithmic);
+    ImGui::SliderFloat("size", &m_brush.size, 1.0f, 256.0f, "%.0f px",
+                       ImGuiSliderFlags_Logarithmic);
     ImGui::SameLine();
     ImGui::SetNextItemWidth(120);
     ImGui::SliderFloat("hardness", &m_brush.hardness, 0.0f, 1.0f, "%.2f");
@@ -131,7 +133,8 @@ void AtlasPanel::draw_controls(AtlasEditor& ed) {
     m_brush.mode = Brush::Mode(mode);
     if (m_brush.mode == Brush::Clone) {
         ImGui::SameLine();
-        ImGui::TextDisabled(m_have_clone_src ? "(Alt+click: new source)" : "Alt+click to set the source");
+        ImGui::TextDisabled(m_have_clone_src ? "(Alt+click: new source)"
+                                             : "Alt+click to set the source");
     }
     ImGui::SameLine(0, 24);
     ImGui::BeginDisabled(!ed.can_undo());
@@ -153,7 +156,8 @@ void AtlasPanel::draw_controls(AtlasEditor& ed) {
     ImGui::SetNextItemWidth(90);
     ImGui::Combo("##fmt", &m_export_format, kExportNames, 3);
     ImGui::SameLine();
-    if (ImGui::Button("Export")) export_atlas(m_layer, m_export_path, kExportFormats[m_export_format]);
+    if (ImGui::Button("Export"))
+        export_atlas(m_layer, m_export_path, kExportFormats[m_export_format]);
     ImGui::SameLine(0, 24);
     ImGui::SetNextItemWidth(300);
     ImGui::InputText("##import", m_import_path, sizeof m_import_path);
@@ -243,10 +247,12 @@ void AtlasPanel::draw_canvas(AtlasEditor& ed) {
         ImGui::SetTooltip("%.0f, %.0f", std::floor(ax), std::floor(ay));
     }
     if (m_brush.mode == Brush::Clone && m_have_clone_src) {
-        const float sx = m_clone_aligned ? (m_painting || hovered ? ax + m_brush.clone_dx : m_clone_src[0])
-                                         : m_clone_src[0];
-        const float sy = m_clone_aligned ? (m_painting || hovered ? ay + m_brush.clone_dy : m_clone_src[1])
-                                         : m_clone_src[1];
+        const float sx = m_clone_aligned
+                             ? (m_painting || hovered ? ax + m_brush.clone_dx : m_clone_src[0])
+                             : m_clone_src[0];
+        const float sy = m_clone_aligned
+                             ? (m_painting || hovered ? ay + m_brush.clone_dy : m_clone_src[1])
+                             : m_clone_src[1];
         const ImVec2 c(o.x + sx * scale, o.y + sy * scale);
         dl->AddLine(ImVec2(c.x - 6, c.y), ImVec2(c.x + 6, c.y), IM_COL32(255, 220, 0, 255), 1.5f);
         dl->AddLine(ImVec2(c.x, c.y - 6), ImVec2(c.x, c.y + 6), IM_COL32(255, 220, 0, 255), 1.5f);
@@ -261,19 +267,24 @@ bool AtlasPanel::draw(bool* open) {
         } else if (ImGui::BeginTabBar("layers")) {
             for (int i = 0; i < 2; ++i) {
                 if (!ImGui::BeginTabItem(kLayerLabel[i])) continue;
-                if (m_layer != i && m_painting) m_edits->layer(m_layer).end_stroke(), m_painting = false;
+                if (m_layer != i && m_painting)
+                    m_edits->layer(m_layer).end_stroke(), m_painting = false;
                 m_layer = i;
                 AtlasEditor& ed = m_edits->layer(i);
                 if (ed.base().empty()) {
-                    ImGui::TextWrapped(i == 0 ? "No fitted atlas yet." : "No foreground atlas (the fit has one layer).");
+                    ImGui::TextWrapped(i == 0 ? "No fitted atlas yet."
+                                              : "No foreground atlas (the fit has one layer).");
                 } else {
-                    const bool focused = ImGui::IsWindowFocused(ImGuiFocusedFlags_RootAndChildWindows);
+                    const bool focused =
+                        ImGui::IsWindowFocused(ImGuiFocusedFlags_RootAndChildWindows);
                     const ImGuiIO& io = ImGui::GetIO();
                     if (focused && !io.WantTextInput) {
                         if (io.KeyCtrl && ImGui::IsKeyPressed(ImGui::GetKeyIndex(ImGuiKey_Z)))
                             io.KeyShift ? ed.redo() : ed.undo();
-                        if (io.KeyCtrl && ImGui::IsKeyPressed(ImGui::GetKeyIndex(ImGuiKey_Y))) ed.redo();
-                        if (!io.KeyCtrl && ImGui::IsKeyPressed('I')) m_picking = !m_picking;  // GLFW_KEY_I
+                        if (io.KeyCtrl && ImGui::IsKeyPressed(ImGui::GetKeyIndex(ImGuiKey_Y)))
+                            ed.redo();
+                        if (!io.KeyCtrl && ImGui::IsKeyPressed('I'))
+                            m_picking = !m_picking;  // GLFW_KEY_I
                     }
                     draw_controls(ed);
                     draw_canvas(ed);

@@ -20,7 +20,7 @@
 namespace refocus {
 
 class AtlasPanel {
-public:
+  public:
     AtlasPanel() = default;
     ~AtlasPanel();  // deletes its GL textures: destroy it while the context is current
     AtlasPanel(const AtlasPanel&) = delete;
@@ -54,7 +54,7 @@ public:
     void set_active_layer(int layer) { m_layer = layer == 1 ? 1 : 0; }
     Brush& brush() { return m_brush; }
 
-private:
+  private:
     AtlasEditor* editor(int layer);
     bool guarded(const std::function<void()>& f);
     void upload(int layer);
@@ -70,7 +70,7 @@ private:
 
     unsigned m_tex[2] = {0, 0};
     int64_t m_tex_version[2] = {-1, -1};
-    float m_zoom = 1.0f, m_pan[2] = {0, 0};  // zoom relative to fit-in-window
+    float m_zoom = 1.0f, m_pan[2] = {0, 0};      // zoom relative to fit-in-window
     float m_origin[2] = {0, 0}, m_scale = 1.0f;  // last drawn: screen = origin + atlas px · scale
     bool m_painting = false, m_picking = false;
     bool m_have_clone_src = false, m_clone_aligned = false;

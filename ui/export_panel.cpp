@@ -18,10 +18,14 @@ struct PassInfo {
     const char* label;
     const char* name;  // export_pass name
 };
-const PassInfo kPasses[] = {{"sharp plate", "sharp"}, {"refocused video", "refocus"},
-                            {"atlases (edited)", "atlas"}, {"alpha", "alpha"},
-                            {"radius (CoC)", "coc"},       {"inverse depth", "depth"},
-                            {"UV maps", "uv"},             {"reblur", "reblur"}};
+const PassInfo kPasses[] = {{"sharp plate", "sharp"},
+                            {"refocused video", "refocus"},
+                            {"atlases (edited)", "atlas"},
+                            {"alpha", "alpha"},
+                            {"radius (CoC)", "coc"},
+                            {"inverse depth", "depth"},
+                            {"UV maps", "uv"},
+                            {"reblur", "reblur"}};
 const char* kFormats[] = {"png", "tiff", "exr", "mp4"};
 
 struct ExportJob {
@@ -41,12 +45,16 @@ std::string run_export(FitEngine& engine, const ExportJob& job, FitWorker& w) {
     for (size_t i = 0; i < job.passes.size(); ++i) {
         const ExportPass pass = parse_export_pass(job.passes[i]);
         std::string fmt = job.format;
-        if ((pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth)) fmt = "exr";
+        if ((pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth))
+            fmt = "exr";
         if (pass == ExportPass::Atlas && fmt == "mp4") fmt = "png";
         std::string target = job.out;
-        if (fmt == "mp4") target = (fs::path(job.out) / (job.passes[i] + ".mp4")).string();
-        else if (pass != ExportPass::Atlas) target = (fs::path(job.out) / job.passes[i]).string();
-        fs::create_directories(fs::path(fmt == "mp4" ? fs::path(target).parent_path() : fs::path(target)));
+        if (fmt == "mp4")
+            target = (fs::path(job.out) / (job.passes[i] + ".mp4")).string();
+        else if (pass != ExportPass::Atlas)
+            target = (fs::path(job.out) / job.passes[i]).string();
+        fs::create_directories(
+            fs::path(fmt == "mp4" ? fs::path(target).parent_path() : fs::path(target)));
         ExportOptions eo;
         eo.fps = job.fps;
         eo.project = job.project.get();
@@ -69,7 +77,9 @@ std::string run_export(FitEngine& engine, const ExportJob& job, FitWorker& w) {
 void reset_export_panel(ExportPanelState& s, StudioContext& ctx) {
     s.first = 0;
     s.last = ctx.source->frames() - 1;
-    if (s.out[0] == 0) std::snprintf(s.out, sizeof s.out, "%s", (ctx.doc.project().dir / "export").string().c_str());
+    if (s.out[0] == 0)
+        std::snprintf(s.out, sizeof s.out, "%s",
+                      (ctx.doc.project().dir / "export").string().c_str());
 }
 
 void start_export(ExportPanelState& s, StudioContext& ctx, const nlohmann::json& req) {
@@ -83,8 +93,9 @@ void start_export(ExportPanelState& s, StudioContext& ctx, const nlohmann::json&
     const int n = ctx.source->frames();
     job->first = req.value("first", 0), job->last = req.value("last", n - 1);
     if (job->first < 0 || job->first > job->last || job->last >= n)
-        throw Error("export range " + std::to_string(job->first) + ".." + std::to_string(job->last) +
-                    " is outside the clip's frames 0.." + std::to_string(n - 1));
+        throw Error("export range " + std::to_string(job->first) + ".." +
+                    std::to_string(job->last) + " is outside the clip's frames 0.." +
+                    std::to_string(n - 1));
     for (const auto& p : job->passes) parse_export_pass(p);  // refuse unknown passes now
     job->edits = std::make_shared<ProjectEdits>(ctx.doc.edits());
     job->project = std::make_shared<Project>(ctx.doc.project());
@@ -124,7 +135,8 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
     }
     ImGui::InputText("folder", s.out, sizeof s.out);
     if (ImGui::Button("Export")) {
-        nlohmann::json req = {{"format", kFormats[s.format]}, {"out", s.out}, {"first", s.first}, {"last", s.last}};
+        nlohmann::json req = {
+            {"format", kFormats[s.format]}, {"out", s.out}, {"first", s.first}, {"last", s.last}};
         std::vector<std::string> what;
         for (int i = 0; i < 8; ++i)
             if (s.pass[i]) what.push_back(kPasses[i].name);

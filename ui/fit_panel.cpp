@@ -30,19 +30,24 @@ void draw_fit_controls(FitPanelState& s, StudioContext& ctx, const FitWorker::St
     for (const auto& n : names) items.push_back(n.c_str());
     ImGui::Combo("preset", &s.preset, items.data(), static_cast<int>(items.size()));
     ImGui::Checkbox("budget in steps", &s.use_iters);
-    if (s.use_iters) ImGui::InputInt("steps", &s.budget_iters, 10, 100);
-    else ImGui::SliderFloat("minutes", &s.budget_minutes, 0.5f, 60.0f, "%.1f min");
+    if (s.use_iters)
+        ImGui::InputInt("steps", &s.budget_iters, 10, 100);
+    else
+        ImGui::SliderFloat("minutes", &s.budget_minutes, 0.5f, 60.0f, "%.1f min");
     ImGui::InputInt("seed", &s.seed);
     ImGui::InputText("radius maps (--coc)", s.coc_path, sizeof s.coc_path);
     ImGui::InputText("masks (--mask)", s.mask_path, sizeof s.mask_path);
     if (ImGui::Button("Fit from scratch")) {
-        if (ctx.worker->has_checkpoint()) ImGui::OpenPopup("Discard the fit?");
-        else ctx.guarded([&] { start_fit(s, ctx, false); });
+        if (ctx.worker->has_checkpoint())
+            ImGui::OpenPopup("Discard the fit?");
+        else
+            ctx.guarded([&] { start_fit(s, ctx, false); });
     }
     if (ImGui::BeginPopupModal("Discard the fit?", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-        ImGui::Text("The project is fitted (step %lld). Start over from nothing?\n"
-                    "(Continue fitting keeps the work and adds the budget.)",
-                    static_cast<long long>(st.snap.step));
+        ImGui::Text(
+            "The project is fitted (step %lld). Start over from nothing?\n"
+            "(Continue fitting keeps the work and adds the budget.)",
+            static_cast<long long>(st.snap.step));
         if (ImGui::Button("Start over")) {
             ImGui::CloseCurrentPopup();
             ctx.guarded([&] { start_fit(s, ctx, false); });
@@ -74,8 +79,10 @@ void draw_fit_curves(const FitWorker::Status& st) {
     std::snprintf(o2, sizeof o2, "reblur %.2f dB", st.history.back().reblur_psnr);
     const float w = ImGui::GetContentRegionAvail().x;
     ImGui::TextUnformatted("loss (log scale) and reblur PSNR, smoothed, over the steps");
-    ImGui::PlotLines("##loss", loss.data(), static_cast<int>(loss.size()), 0, o1, FLT_MAX, FLT_MAX, ImVec2(w, 80));
-    ImGui::PlotLines("##psnr", psnr.data(), static_cast<int>(psnr.size()), 0, o2, FLT_MAX, FLT_MAX, ImVec2(w, 80));
+    ImGui::PlotLines("##loss", loss.data(), static_cast<int>(loss.size()), 0, o1, FLT_MAX, FLT_MAX,
+                     ImVec2(w, 80));
+    ImGui::PlotLines("##psnr", psnr.data(), static_cast<int>(psnr.size()), 0, o2, FLT_MAX, FLT_MAX,
+                     ImVec2(w, 80));
 }
 
 }  // namespace
@@ -99,7 +106,8 @@ void start_fit(const FitPanelState& p, StudioContext& ctx, bool resume) {
     s.fit.preset = studio_preset_names().at(p.preset);
     s.fit.minutes = p.use_iters ? 0.0 : p.budget_minutes;
     s.fit.iters = p.use_iters ? p.budget_iters : 0;
-    if (s.fit.minutes <= 0 && s.fit.iters <= 0) throw Error("give the fit a budget: minutes or steps");
+    if (s.fit.minutes <= 0 && s.fit.iters <= 0)
+        throw Error("give the fit a budget: minutes or steps");
     s.fit.seed = static_cast<uint64_t>(std::max(0, p.seed));
     s.setup.coc_path = p.coc_path;
     s.setup.mask_path = p.mask_path;
@@ -113,7 +121,8 @@ void draw_fit_panel(FitPanelState& p, StudioContext& ctx) {
         return;
     }
     const FitWorker::Status st = ctx.worker->status(true);
-    const bool running = st.state == FitWorker::State::Fitting || st.state == FitWorker::State::Paused;
+    const bool running =
+        st.state == FitWorker::State::Fitting || st.state == FitWorker::State::Paused;
     ImGui::BeginDisabled(running || st.busy);
     draw_fit_controls(p, ctx, st);
     ImGui::EndDisabled();
@@ -125,12 +134,14 @@ void draw_fit_panel(FitPanelState& p, StudioContext& ctx) {
     }
     ImGui::Separator();
     const FitSnapshot& s = st.snap;
-    ImGui::Text("state: %s%s", state_name(st.state), st.busy ? ("  (" + st.busy_what + ")").c_str() : "");
+    ImGui::Text("state: %s%s", state_name(st.state),
+                st.busy ? ("  (" + st.busy_what + ")").c_str() : "");
     char overlay[96];
     std::snprintf(overlay, sizeof overlay, "%.0f%%  elapsed %s  ETA %s", 100 * s.progress,
                   clock_text(s.elapsed_s).c_str(), clock_text(s.eta_s).c_str());
     ImGui::ProgressBar(static_cast<float>(s.progress), ImVec2(-1, 0), overlay);
-    ImGui::Text("step %lld   reblur PSNR %.2f dB   loss %.5f", static_cast<long long>(s.step), s.reblur_psnr, s.loss);
+    ImGui::Text("step %lld   reblur PSNR %.2f dB   loss %.5f", static_cast<long long>(s.step),
+                s.reblur_psnr, s.loss);
     for (const auto& [k, v] : s.terms) ImGui::BulletText("%s  %.5g", k.c_str(), v);
     if (st.history.size() >= 2) draw_fit_curves(st);
     if (!st.error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "%s", st.error.c_str());

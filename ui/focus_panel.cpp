@@ -29,7 +29,8 @@ void set_focus_key(StudioContext& ctx, const std::string& name, int frame, doubl
             (name == "beta" && l.lane == &FocusTrack::beta) ||
             (name == "highlight_gain" && l.lane == &FocusTrack::highlight_gain) ||
             (name == "rotation_deg" && l.lane == &FocusTrack::rotation_deg)) {
-            if (!std::isfinite(value)) throw Error("keyframe value for " + name + " is not a number");
+            if (!std::isfinite(value))
+                throw Error("keyframe value for " + name + " is not a number");
             (ctx.doc.focus().*(l.lane)).set(frame, std::clamp(value, l.min, l.max), e);
             ctx.changed();
             return;
@@ -39,7 +40,8 @@ void set_focus_key(StudioContext& ctx, const std::string& name, int frame, doubl
 
 void focus_at_pixel(StudioContext& ctx, Easing e, int frame, int x, int y) {
     if (!ctx.depth) throw Error("the depth is not ready yet: fit the project first (Fit tab)");
-    if (!ctx.view || ctx.view->t != frame) throw Error("frame " + std::to_string(frame) + " is still rendering");
+    if (!ctx.view || ctx.view->t != frame)
+        throw Error("frame " + std::to_string(frame) + " is still rendering");
     const FrameMaps& m = ctx.view->maps;
     const float d = ctx.depth->depth_at_pixel(frame, x, y, m.uv_bg, m.uv_fg, m.alpha);
     set_focus_key(ctx, "focus", frame, d, e);
@@ -50,7 +52,8 @@ void focus_at_pixel(StudioContext& ctx, Easing e, int frame, int x, int y) {
 
 void track_pixel(StudioContext& ctx, Easing e, int frame, int x, int y) {
     if (!ctx.depth) throw Error("the depth is not ready yet: fit the project first (Fit tab)");
-    if (!ctx.view || ctx.view->t != frame) throw Error("frame " + std::to_string(frame) + " is still rendering");
+    if (!ctx.view || ctx.view->t != frame)
+        throw Error("frame " + std::to_string(frame) + " is still rendering");
     const FrameMaps& m = ctx.view->maps;
     FocusTarget tgt;
     const bool fg = !m.alpha.empty() && m.alpha.at(x, y, 0) > 0.5f;
@@ -72,8 +75,8 @@ namespace {
 void draw_lane_sliders(FocusPanelState& s, StudioContext& ctx) {
     FocusTrack& ft = ctx.doc.focus();
     const PreviewLens lens = ft.lens_at(ctx.frame, ctx.depth.get());
-    const double current[] = {lens.focus, lens.aperture, double(lens.blades), lens.rotation_deg, lens.beta,
-                              lens.highlight_gain};
+    const double current[] = {lens.focus,        lens.aperture, double(lens.blades),
+                              lens.rotation_deg, lens.beta,     lens.highlight_gain};
     const auto& lanes = focus_lanes();
     for (size_t i = 0; i < lanes.size(); ++i) {
         float v = static_cast<float>(current[i]);
@@ -87,8 +90,10 @@ void draw_lane_sliders(FocusPanelState& s, StudioContext& ctx) {
         const bool keyed = std::any_of(lane.keys.begin(), lane.keys.end(),
                                        [&](const Keyframe& k) { return k.frame == ctx.frame; });
         if (ImGui::SmallButton(keyed ? "del" : "key")) {
-            if (keyed) lane.remove(ctx.frame);
-            else lane.set(ctx.frame, current[i], s.new_key_easing);
+            if (keyed)
+                lane.remove(ctx.frame);
+            else
+                lane.set(ctx.frame, current[i], s.new_key_easing);
             ctx.changed();
         }
         ImGui::PopID();
@@ -103,8 +108,8 @@ void arm_pick(ViewerState& viewer, StudioContext& ctx, ViewerState::Pick pick) {
 
 void draw_tracking(StudioContext& ctx) {
     FocusTrack& ft = ctx.doc.focus();
-    ImGui::Text("tracking %s point (%.3f, %.3f)", ft.track->layer ? "foreground" : "background", ft.track->u,
-                ft.track->v);
+    ImGui::Text("tracking %s point (%.3f, %.3f)", ft.track->layer ? "foreground" : "background",
+                ft.track->u, ft.track->v);
     ImGui::SetNextItemWidth(200);
     int range[2] = {ft.track->from_frame, ft.track->to_frame};
     if (ImGui::DragInt2("frames", range, 0.2f, 0, ctx.source ? ctx.source->frames() - 1 : 0)) {
@@ -126,8 +131,9 @@ void draw_focus_panel(FocusPanelState& s, ViewerState& viewer, StudioContext& ct
         return;
     }
     if (!ctx.depth)
-        ImGui::TextWrapped("Depth appears after a fit (it is fitted to the radius maps); until then "
-                           "the refocused view shows the sharp composite.");
+        ImGui::TextWrapped(
+            "Depth appears after a fit (it is fitted to the radius maps); until then "
+            "the refocused view shows the sharp composite.");
     else
         ImGui::Text("depth fitted: rms %.2f px", ctx.depth->rms_px);
     ImGui::TextWrapped("Values at frame %d. Changing one sets a keyframe there.", ctx.frame);
@@ -143,8 +149,9 @@ void draw_focus_panel(FocusPanelState& s, ViewerState& viewer, StudioContext& ct
     if (ImGui::Button(viewer.pick == Pick::Track ? "click the viewer..." : "Track a point"))
         arm_pick(viewer, ctx, Pick::Track);
     if (ctx.doc.focus().track) draw_tracking(ctx);
-    ImGui::TextWrapped("Rack focus: key the focus at two frames (e.g. click the background at the "
-                       "first frame and the subject at a later one); ease in-out eases between them.");
+    ImGui::TextWrapped(
+        "Rack focus: key the focus at two frames (e.g. click the background at the "
+        "first frame and the subject at a later one); ease in-out eases between them.");
 }
 
 }  // namespace refocus

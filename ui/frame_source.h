@@ -13,7 +13,7 @@
 namespace refocus {
 
 class FrameSource {
-public:
+  public:
     // Opens a project folder / project.json, or any clip ClipReader accepts.
     explicit FrameSource(const std::string& path);
     int width() const { return m_width; }
@@ -25,7 +25,7 @@ public:
     const std::vector<unsigned char>& rgba8(int index);
     Image linear(int index);
 
-private:
+  private:
     std::unique_ptr<Project> m_project;
     std::unique_ptr<ClipReader> m_clip;
     int m_width = 0, m_height = 0, m_frames = 0;

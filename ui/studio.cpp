@@ -82,7 +82,8 @@ void Studio::new_project(const std::string& clip, const std::string& dir) {
     FitWorker* w = m_ctx.worker.get();
     m_ctx.worker->post("ingest " + clip, [w, clip, dir](FitEngine*, const Project&) {
         try {
-            Project p = create_project(clip, dir, {}, [w](int i, int n) { w->set_job_progress(double(i) / n); });
+            Project p = create_project(clip, dir, {},
+                                       [w](int i, int n) { w->set_job_progress(double(i) / n); });
             w->post_result("ingested:" + p.dir.string());
         } catch (const std::exception& e) {
             w->post_result(std::string("ingest failed:") + e.what());
@@ -120,8 +121,10 @@ void Studio::save_as(const std::string& dir) {
 }
 
 void Studio::request_close() {
-    if (m_ctx.doc.dirty()) ask_unsaved(DialogState::Pending::Quit);
-    else m_quit = true;
+    if (m_ctx.doc.dirty())
+        ask_unsaved(DialogState::Pending::Quit);
+    else
+        m_quit = true;
 }
 
 void Studio::screenshot(const std::string& path) {
@@ -196,7 +199,8 @@ void Studio::poll_results() {
 
 void Studio::draw_side_panel() {
     const ImGuiViewport* vp = ImGui::GetMainViewport();
-    ImGui::SetNextWindowPos(ImVec2(vp->WorkPos.x + vp->WorkSize.x - kSidePanelWidth, vp->WorkPos.y));
+    ImGui::SetNextWindowPos(
+        ImVec2(vp->WorkPos.x + vp->WorkSize.x - kSidePanelWidth, vp->WorkPos.y));
     ImGui::SetNextWindowSize(ImVec2(kSidePanelWidth, vp->WorkSize.y));
     ImGui::Begin("Panel", nullptr,
                  ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse |
@@ -231,8 +235,10 @@ void Studio::handle_keys() {
     if (io.WantTextInput) return;
     const bool ctrl = io.KeyCtrl;
     if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_S)) {
-        if (io.KeyShift) m_dialogs.show_save_as = true;
-        else m_ctx.guarded([&] { save(); });
+        if (io.KeyShift)
+            m_dialogs.show_save_as = true;
+        else
+            m_ctx.guarded([&] { save(); });
     }
     if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_O)) m_dialogs.show_open = true;
     if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_N)) m_dialogs.show_new = true;
@@ -259,13 +265,16 @@ void Studio::frame() {
     poll_results();
     draw_menu();
     if (auto click = draw_viewer(m_viewer, m_atlas, m_ctx)) {
-        if (click->pick == ViewerState::Pick::Focus) m_ctx.guarded([&] { focus_at_pixel(m_ctx.frame, click->x, click->y); });
-        if (click->pick == ViewerState::Pick::Track) m_ctx.guarded([&] { track_pixel(m_ctx.frame, click->x, click->y); });
+        if (click->pick == ViewerState::Pick::Focus)
+            m_ctx.guarded([&] { focus_at_pixel(m_ctx.frame, click->x, click->y); });
+        if (click->pick == ViewerState::Pick::Track)
+            m_ctx.guarded([&] { track_pixel(m_ctx.frame, click->x, click->y); });
     }
     draw_timeline(m_timeline, m_ctx);
     draw_side_panel();
     draw_modals();
-    if (m_ctx.doc.is_open()) m_ctx.guarded([&] {
+    if (m_ctx.doc.is_open())
+        m_ctx.guarded([&] {
             if (m_ctx.doc.autosave_if_due(glfwGetTime())) m_ctx.info = "autosaved";
         });
 }
@@ -280,7 +289,8 @@ int run_studio(const StudioOptions& opts) {
     glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
     glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
     glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
-    GLFWwindow* window = glfwCreateWindow(opts.width, opts.height, "Refocus Studio", nullptr, nullptr);
+    GLFWwindow* window =
+        glfwCreateWindow(opts.width, opts.height, "Refocus Studio", nullptr, nullptr);
     if (!window) {
         glfwTerminate();
         throw Error("cannot create an OpenGL 3.3 window");

@@ -22,13 +22,18 @@ namespace refocus {
 // The File menu's prompts and the question about unsaved changes.
 struct DialogState {
     bool show_open = false, show_new = false, show_save_as = false, show_unsaved = false;
-    enum class Pending { None, Open, New, Quit } pending = Pending::None;  // after "unsaved changes"
+    enum class Pending {
+        None,
+        Open,
+        New,
+        Quit
+    } pending = Pending::None;  // after "unsaved changes"
     std::string pending_path, pending_clip;
     char path_buf[1024] = {0}, clip_buf[1024] = {0};
 };
 
 class Studio {
-public:
+  public:
     Studio(GLFWwindow* window, const StudioOptions& opts);
     ~Studio();
 
@@ -47,9 +52,15 @@ public:
     void set_key(const std::string& lane, int frame, double value, Easing e) {
         set_focus_key(m_ctx, lane, frame, value, e);
     }
-    void focus_at_pixel(int frame, int x, int y) { refocus::focus_at_pixel(m_ctx, m_focus.new_key_easing, frame, x, y); }
-    void track_pixel(int frame, int x, int y) { refocus::track_pixel(m_ctx, m_focus.new_key_easing, frame, x, y); }
-    void start_export(const nlohmann::json& request) { refocus::start_export(m_export, m_ctx, request); }
+    void focus_at_pixel(int frame, int x, int y) {
+        refocus::focus_at_pixel(m_ctx, m_focus.new_key_easing, frame, x, y);
+    }
+    void track_pixel(int frame, int x, int y) {
+        refocus::track_pixel(m_ctx, m_focus.new_key_easing, frame, x, y);
+    }
+    void start_export(const nlohmann::json& request) {
+        refocus::start_export(m_export, m_ctx, request);
+    }
     void screenshot(const std::string& path);
     void set_mode(const ViewModeInfo& m) { set_view_mode(m_viewer, m_ctx, m); }
 
@@ -63,7 +74,7 @@ public:
     const std::string& export_result() const { return m_export.result; }
     const FrameTimes& times() const { return m_ctx.times; }
 
-private:
+  private:
     friend class StudioScript;
     void draw_menu();
     void draw_side_panel();

@@ -32,7 +32,7 @@ struct StudioContext {
     StudioDoc doc;
     std::unique_ptr<FitWorker> worker;
     std::unique_ptr<FrameSource> source;  // the input frames; null until a project is open
-    std::unique_ptr<GlPreview> gl;        // null when the preview failed to start: gl_error says why
+    std::unique_ptr<GlPreview> gl;  // null when the preview failed to start: gl_error says why
     std::string gl_error;
 
     int frame = 0;  // the playhead

@@ -51,16 +51,20 @@ void Studio::draw_menu() {
                 }
             ImGui::EndMenu();
         }
-        if (ImGui::MenuItem("Save", "Ctrl+S", false, m_ctx.doc.is_open())) m_ctx.guarded([&] { save(); });
-        if (ImGui::MenuItem("Save as...", "Ctrl+Shift+S", false, m_ctx.doc.is_open() && idle)) d.show_save_as = true;
+        if (ImGui::MenuItem("Save", "Ctrl+S", false, m_ctx.doc.is_open()))
+            m_ctx.guarded([&] { save(); });
+        if (ImGui::MenuItem("Save as...", "Ctrl+Shift+S", false, m_ctx.doc.is_open() && idle))
+            d.show_save_as = true;
         ImGui::Separator();
         if (ImGui::MenuItem("Quit", "Ctrl+Q")) request_close();
         ImGui::EndMenu();
     }
     if (ImGui::BeginMenu("View")) {
         for (const ViewModeInfo& m : view_modes()) {
-            const std::string key = m.key > 32 && m.key < 127 ? std::string(1, static_cast<char>(m.key)) : "";
-            if (ImGui::MenuItem(m.name, key.empty() ? nullptr : key.c_str(), m_viewer.mode == &m && !m_viewer.show_atlas))
+            const std::string key =
+                m.key > 32 && m.key < 127 ? std::string(1, static_cast<char>(m.key)) : "";
+            if (ImGui::MenuItem(m.name, key.empty() ? nullptr : key.c_str(),
+                                m_viewer.mode == &m && !m_viewer.show_atlas))
                 set_mode(m);
         }
         ImGui::Separator();
@@ -70,7 +74,8 @@ void Studio::draw_menu() {
     }
     const auto st = m_ctx.worker->status();
     ImGui::SameLine(ImGui::GetWindowWidth() - 420);
-    ImGui::TextDisabled("%s%s  |  fit: %s%s", m_ctx.doc.is_open() ? m_ctx.doc.project().name.c_str() : "",
+    ImGui::TextDisabled("%s%s  |  fit: %s%s",
+                        m_ctx.doc.is_open() ? m_ctx.doc.project().name.c_str() : "",
                         m_ctx.doc.dirty() ? " *" : "", state_name(st.state),
                         st.busy ? ("  |  " + st.busy_what).c_str() : "");
     ImGui::EndMainMenuBar();
@@ -78,8 +83,8 @@ void Studio::draw_menu() {
 
 void Studio::draw_path_dialogs() {
     DialogState& d = m_dialogs;
-    if (path_popup("Open project", "Project folder, or a clip (video, image folder or pattern):", d.path_buf,
-                   sizeof d.path_buf, "Open")) {
+    if (path_popup("Open project", "Project folder, or a clip (video, image folder or pattern):",
+                   d.path_buf, sizeof d.path_buf, "Open")) {
         if (m_ctx.doc.dirty()) {
             d.pending_path = d.path_buf;
             ask_unsaved(DialogState::Pending::Open);
@@ -108,14 +113,16 @@ void Studio::draw_path_dialogs() {
         if (ImGui::Button("Cancel")) ImGui::CloseCurrentPopup();
         ImGui::EndPopup();
     }
-    if (path_popup("Save project as", "New project folder (the project, its fit and edits are copied):", d.path_buf,
+    if (path_popup("Save project as",
+                   "New project folder (the project, its fit and edits are copied):", d.path_buf,
                    sizeof d.path_buf, "Save"))
         m_ctx.guarded([&] { save_as(d.path_buf); });
 }
 
 // Save, discard or cancel, then go on with what was asked (quit, open, new).
 void Studio::draw_unsaved_dialog() {
-    if (!ImGui::BeginPopupModal("Unsaved changes", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) return;
+    if (!ImGui::BeginPopupModal("Unsaved changes", nullptr, ImGuiWindowFlags_AlwaysAutoResize))
+        return;
     DialogState& d = m_dialogs;
     ImGui::Text("%s has unsaved changes (focus keyframes, atlas paint).",
                 m_ctx.doc.is_open() ? m_ctx.doc.project().name.c_str() : "The project");
@@ -124,7 +131,8 @@ void Studio::draw_unsaved_dialog() {
         d.pending = DialogState::Pending::None;
         if (p == DialogState::Pending::Quit) m_quit = true;
         if (p == DialogState::Pending::Open) m_ctx.guarded([&] { open_project(d.pending_path); });
-        if (p == DialogState::Pending::New) m_ctx.guarded([&] { new_project(d.pending_clip, d.pending_path); });
+        if (p == DialogState::Pending::New)
+            m_ctx.guarded([&] { new_project(d.pending_clip, d.pending_path); });
     };
     if (ImGui::Button("Save")) {
         ImGui::CloseCurrentPopup();
@@ -154,8 +162,9 @@ void Studio::draw_unsaved_dialog() {
 void Studio::draw_autosave_and_error() {
     if (m_ctx.doc.is_open() && m_ctx.doc.has_newer_autosave()) ImGui::OpenPopup("Restore autosave");
     if (ImGui::BeginPopupModal("Restore autosave", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
-        ImGui::TextUnformatted("This project has autosaved changes newer than its last save\n"
-                               "(the studio was closed without saving). Restore them?");
+        ImGui::TextUnformatted(
+            "This project has autosaved changes newer than its last save\n"
+            "(the studio was closed without saving). Restore them?");
         if (ImGui::Button("Restore")) {
             m_ctx.guarded([&] { m_ctx.doc.restore_autosave(); });
             m_ctx.view_dirty = true;

@@ -27,10 +27,12 @@ void expand_env(json& j) {
                 break;
             }
             size_t e = v.find('}', b);
-            if (e == std::string::npos) throw Error("unterminated ${ in script value \"" + v + "\"");
+            if (e == std::string::npos)
+                throw Error("unterminated ${ in script value \"" + v + "\"");
             const std::string name = v.substr(b + 2, e - b - 2);
             const char* val = std::getenv(name.c_str());
-            if (!val) throw Error("script uses ${" + name + "} but the environment does not set it");
+            if (!val)
+                throw Error("script uses ${" + name + "} but the environment does not set it");
             out += v.substr(i, b - i) + val;
             i = e + 1;
         }
@@ -82,11 +84,12 @@ int StudioScript::advance(Studio& studio) {
                          m_index + 1, step.dump().c_str(), e.what());
             return 1;
         }
-        const double limit = step.is_object() && step.contains("timeout") ? step["timeout"].get<double>() : 900.0;
+        const double limit =
+            step.is_object() && step.contains("timeout") ? step["timeout"].get<double>() : 900.0;
         if (!done) {
             if (now - m_step_start > limit) {
-                std::fprintf(stderr, "refocus-studio: %s: step %zu timed out after %.0f s\n", m_path.c_str(),
-                             m_index + 1, limit);
+                std::fprintf(stderr, "refocus-studio: %s: step %zu timed out after %.0f s\n",
+                             m_path.c_str(), m_index + 1, limit);
                 return 1;
             }
             return -1;  // wait for more frames
@@ -102,8 +105,8 @@ int StudioScript::advance(Studio& studio) {
 bool StudioScript::run_step(Studio& st, const json& step) {
     const bool first = m_settle++ == 0;
     // The step's kind is its key; each group below answers for its own keys.
-    for (auto group : {&StudioScript::project_step, &StudioScript::view_step, &StudioScript::edit_step,
-                       &StudioScript::check_step})
+    for (auto group : {&StudioScript::project_step, &StudioScript::view_step,
+                       &StudioScript::edit_step, &StudioScript::check_step})
         if (std::optional<bool> done = (this->*group)(st, step, first)) return *done;
     throw Error("unknown step " + step.dump());
 }
@@ -111,8 +114,8 @@ bool StudioScript::run_step(Studio& st, const json& step) {
 bool StudioScript::worker_idle(Studio& st) const {
     auto s = st.m_ctx.worker->status();
     if (!s.error.empty() && s.state == FitWorker::State::Failed) throw Error(s.error);
-    return !s.busy && s.state != FitWorker::State::Preparing && s.state != FitWorker::State::Fitting &&
-           s.state != FitWorker::State::Paused;
+    return !s.busy && s.state != FitWorker::State::Preparing &&
+           s.state != FitWorker::State::Fitting && s.state != FitWorker::State::Paused;
 }
 
 // open, new, fit, wait_depth, save, save_as, reopen.
@@ -138,7 +141,8 @@ std::optional<bool> StudioScript::project_step(Studio& st, const json& step, boo
         }
         if (m_settle < 3) return false;  // let the worker pick the job up
         if (!worker_idle(st)) return false;
-        if (!ctx.worker->has_engine()) throw Error("the fit ended without a fitted engine: " + ctx.worker->status().error);
+        if (!ctx.worker->has_engine())
+            throw Error("the fit ended without a fitted engine: " + ctx.worker->status().error);
         return true;
     }
     if (step.contains("wait_depth")) return ctx.depth != nullptr && st.view_current();
@@ -188,7 +192,8 @@ std::optional<bool> StudioScript::view_step(Studio& st, const json& step, bool f
             v.slice.dirty = true;
         }
         if (!(m_settle > 3 && !v.slice.job && !v.slice.key.empty())) return false;
-        if (ts.contains("save")) write_image_file(ts["save"].get<std::string>(), v.slice.image, PixelFormat::Png8);
+        if (ts.contains("save"))
+            write_image_file(ts["save"].get<std::string>(), v.slice.image, PixelFormat::Png8);
         return true;
     }
     if (step.contains("split")) {
@@ -209,15 +214,18 @@ std::optional<bool> StudioScript::edit_step(Studio& st, const json& step, bool f
     StudioContext& ctx = st.m_ctx;
     if (step.contains("key")) {
         const json& k = step["key"];
-        st.set_key(k.at("lane"), k.at("frame"), k.at("value"), parse_easing(k.value("easing", "ease")));
+        st.set_key(k.at("lane"), k.at("frame"), k.at("value"),
+                   parse_easing(k.value("easing", "ease")));
         return true;
     }
     if (step.contains("focus_click") || step.contains("track_click")) {
         const json& c = step.contains("focus_click") ? step["focus_click"] : step["track_click"];
         if (first) st.set_frame(c.at("frame"));
         if (!(st.view_current() && ctx.depth)) return false;
-        if (step.contains("focus_click")) st.focus_at_pixel(c.at("frame"), c.at("x"), c.at("y"));
-        else st.track_pixel(c.at("frame"), c.at("x"), c.at("y"));
+        if (step.contains("focus_click"))
+            st.focus_at_pixel(c.at("frame"), c.at("x"), c.at("y"));
+        else
+            st.track_pixel(c.at("frame"), c.at("x"), c.at("y"));
         return true;
     }
     if (step.contains("paint")) {
@@ -230,7 +238,8 @@ std::optional<bool> StudioScript::edit_step(Studio& st, const json& step, bool f
         b.hardness = p.value("hardness", 1.0f);
         b.opacity = p.value("opacity", 1.0f);
         std::vector<std::array<float, 2>> pts;
-        for (const auto& q : p.at("points")) pts.push_back({q.at(0).get<float>(), q.at(1).get<float>()});
+        for (const auto& q : p.at("points"))
+            pts.push_back({q.at(0).get<float>(), q.at(1).get<float>()});
         const int layer = p.value("layer", "bg") == "fg" ? 1 : 0;
         if (ctx.doc.edits().layer(layer).width() == 0) return false;  // atlases not here yet
         if (!st.m_atlas.paint_stroke(layer, pts, b)) throw Error("the paint stroke was refused");
@@ -264,13 +273,15 @@ std::optional<bool> StudioScript::check_step(Studio& st, const json& step, bool)
             for (auto& [lane, count] : e["keys"].items()) {
                 int have = -1;
                 for (const LaneInfo& l : focus_lanes())
-                    if (lane == l.name) have = static_cast<int>((ctx.doc.focus().*(l.lane)).keys.size());
+                    if (lane == l.name)
+                        have = static_cast<int>((ctx.doc.focus().*(l.lane)).keys.size());
                 if (have != count.get<int>())
                     throw Error("expected " + count.dump() + " keys on lane " + lane + ", found " +
                                 std::to_string(have));
             }
         if (e.contains("edits") && e["edits"].get<bool>() != ctx.doc.edits().has_edits())
-            throw Error(std::string("expected ") + (e["edits"].get<bool>() ? "" : "no ") + "atlas edits");
+            throw Error(std::string("expected ") + (e["edits"].get<bool>() ? "" : "no ") +
+                        "atlas edits");
         if (e.contains("fitted") && e["fitted"].get<bool>() != ctx.worker->has_engine())
             throw Error("expected the project to be fitted");
         if (e.contains("track") && e["track"].get<bool>() != ctx.doc.focus().track.has_value())

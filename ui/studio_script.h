@@ -27,13 +27,13 @@ namespace refocus {
 class Studio;
 
 class StudioScript {
-public:
+  public:
     explicit StudioScript(const std::string& path);
     // Runs or continues the current step after a drawn frame. -1: keep going; 0: finished;
     // 1: failed (the reason is printed on stderr).
     int advance(Studio& studio);
 
-private:
+  private:
     bool run_step(Studio& studio, const nlohmann::json& step);  // true: step finished
     // One group of steps each: nullopt for a step of another group, else whether it finished.
     std::optional<bool> project_step(Studio& st, const nlohmann::json& step, bool first);

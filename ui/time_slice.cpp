@@ -22,7 +22,8 @@ void post_output_slice(StudioContext& ctx, std::shared_ptr<TimeSliceState::Job> 
     const FocusTrack focus = ctx.doc.focus();
     const Image bg_edit = ctx.doc.edits().bg.has_edits() ? ctx.doc.edits().bg.result() : Image();
     const Image fg_edit = ctx.doc.edits().fg.has_edits() ? ctx.doc.edits().fg.result() : Image();
-    ctx.worker->post("time slice", [job, row, depth, focus, w, n, bg_edit, fg_edit](FitEngine* engine, const Project&) {
+    ctx.worker->post("time slice", [job, row, depth, focus, w, n, bg_edit, fg_edit](
+                                       FitEngine* engine, const Project&) {
         if (!engine) return;
         torch::Tensor d_bg, d_fg;
         {
@@ -39,7 +40,8 @@ void post_output_slice(StudioContext& ctx, std::shared_ptr<TimeSliceState::Job> 
         Image s(w, n, 3);
         for (int t = 0; t < n; ++t) {
             const FrameMaps m = frame_maps(*engine, t, d_bg, d_fg);
-            const Image f = depth ? render_refocused(m, *depth, t, focus.lens_at(t, depth.get()), 2) : m.sharp;
+            const Image f =
+                depth ? render_refocused(m, *depth, t, focus.lens_at(t, depth.get()), 2) : m.sharp;
             for (int x = 0; x < w; ++x)
                 for (int c = 0; c < 3; ++c) s.at(x, t, c) = f.at(x, row, c);
         }
@@ -54,8 +56,9 @@ void rebuild_time_slice(TimeSliceState& s, StudioContext& ctx, bool output, bool
     const int w = ctx.source->width(), n = ctx.source->frames();
     if (s.row < 0 || s.row >= ctx.source->height()) s.row = ctx.source->height() / 2;
     const int64_t edit_version = ctx.edits_version();
-    std::string key = std::to_string(s.row) + (output ? (refocus ? "/refocus/" : "/sharp/") : "/input/") +
-                      std::to_string(ctx.atlas_version) + "/" + std::to_string(output ? edit_version : 0);
+    std::string key =
+        std::to_string(s.row) + (output ? (refocus ? "/refocus/" : "/sharp/") : "/input/") +
+        std::to_string(ctx.atlas_version) + "/" + std::to_string(output ? edit_version : 0);
     if (refocus) key += ctx.doc.focus().to_json().dump();
     s.dirty = false;
     if (key == s.key) return;
@@ -65,7 +68,8 @@ void rebuild_time_slice(TimeSliceState& s, StudioContext& ctx, bool output, bool
         for (int t = 0; t < n; ++t) {
             Image f = ctx.source->linear(t);
             for (int x = 0; x < w; ++x)
-                for (int c = 0; c < 3; ++c) img.at(x, t, c) = f.at(x, s.row, std::min(c, f.channels - 1));
+                for (int c = 0; c < 3; ++c)
+                    img.at(x, t, c) = f.at(x, s.row, std::min(c, f.channels - 1));
         }
         upload_texture(s.tex, img, s.tex_w, s.tex_h);
         s.image = std::move(img);
@@ -91,8 +95,8 @@ void poll_time_slice(TimeSliceState& s) {
 }
 
 void draw_time_slice(TimeSliceState& s, StudioContext& ctx, float width, float height) {
-    ImGui::Text("time slice: %s row %d over %d frames%s (click the image to choose the row)", s.label.c_str(),
-                s.row, ctx.source->frames(), s.job ? ", rendering ..." : "");
+    ImGui::Text("time slice: %s row %d over %d frames%s (click the image to choose the row)",
+                s.label.c_str(), s.row, ctx.source->frames(), s.job ? ", rendering ..." : "");
     const float h = height - ImGui::GetFrameHeightWithSpacing();
     ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<intptr_t>(s.tex)),
                  ImVec2(std::min(width, h * s.tex_w / std::max(1, s.tex_h) * 3), h));

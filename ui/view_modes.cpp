@@ -17,11 +17,14 @@ namespace {
 Image grey_to_rgb(const Image& g, float scale = 1.0f) {
     Image out(g.width, g.height, 3);
     for (size_t i = 0; i < static_cast<size_t>(g.width) * g.height; ++i)
-        for (int c = 0; c < 3; ++c) out.pixels[i * 3 + c] = srgb_to_linear(g.pixels[i * g.channels] * scale);
+        for (int c = 0; c < 3; ++c)
+            out.pixels[i * 3 + c] = srgb_to_linear(g.pixels[i * g.channels] * scale);
     return out;
 }
 
-Image black(StudioContext& ctx) { return Image(ctx.source->width(), ctx.source->height(), 3, 0.0f); }
+Image black(StudioContext& ctx) {
+    return Image(ctx.source->width(), ctx.source->height(), 3, 0.0f);
+}
 
 // The lens's gather window follows the largest radius this frame can have: the picture is the
 // same as with the default bound, and small apertures render much faster.
@@ -34,7 +37,8 @@ void bound_lens_radius(PreviewLens& lens, const DepthModel& depth, int frame) {
     range(depth.bg_atlas, 0.0f);
     if (depth.has_fg()) range(depth.fg_atlas, depth.fg_offset[frame]);
     if (lo <= hi) {
-        const double r = lens.aperture * std::max(std::abs(hi - lens.focus), std::abs(lo - lens.focus));
+        const double r =
+            lens.aperture * std::max(std::abs(hi - lens.focus), std::abs(lo - lens.focus));
         lens.max_radius = std::clamp(std::ceil(r) + 1.0, 1.0, lens.max_radius);
     }
 }
@@ -68,7 +72,9 @@ Image preview_image(StudioContext& ctx, bool refocus) {
     return out;
 }
 
-Image render_input(const ViewerState&, StudioContext& ctx) { return ctx.source->linear(ctx.frame); }
+Image render_input(const ViewerState&, StudioContext& ctx) {
+    return ctx.source->linear(ctx.frame);
+}
 
 Image render_sharp(const ViewerState& v, StudioContext& ctx) {
     if (!ctx.view) return render_input(v, ctx);
@@ -103,7 +109,8 @@ Image render_depth(const ViewerState&, StudioContext& ctx) {
     Image g = ctx.depth->depth_map(ctx.frame, m.uv_bg, m.uv_fg, m.alpha);
     float lo = 1e30f, hi = -1e30f;
     for (float v : g.pixels) lo = std::min(lo, v), hi = std::max(hi, v);
-    for (size_t i = 0; i < g.pixels.size(); ++i) g.pixels[i] = (g.pixels[i] - lo) / std::max(hi - lo, 1e-6f);
+    for (size_t i = 0; i < g.pixels.size(); ++i)
+        g.pixels[i] = (g.pixels[i] - lo) / std::max(hi - lo, 1e-6f);
     return coc_heatmap(g, 1.0);
 }
 

@@ -16,9 +16,10 @@ struct ViewModeInfo {
     const char* name;   // View menu, scripts ({"mode": name}), screenshot metadata
     const char* label;  // the viewer's mode bar and the split's side lists
     int key;            // GLFW key that selects it (outside text fields); 0: none
-    bool needs_fit;     // shows the fit's output: waits for the fit's frame, shows the input until then
-    bool refocused;     // seen through the lens: the time slice renders its rows refocused
-    bool wipe;          // the split wipe: two other modes side by side, chosen in the mode bar
+    bool
+        needs_fit;  // shows the fit's output: waits for the fit's frame, shows the input until then
+    bool refocused;  // seen through the lens: the time slice renders its rows refocused
+    bool wipe;       // the split wipe: two other modes side by side, chosen in the mode bar
     // The picture at the playhead, linear RGB. May throw: the viewer then shows the input and
     // says why in the status line.
     Image (*render)(const ViewerState& viewer, StudioContext& ctx);

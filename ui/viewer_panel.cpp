@@ -24,7 +24,8 @@ bool shows_refocused(const ViewerState& v) {
     return v.mode->refocused || (v.mode->wipe && (v.split_a->refocused || v.split_b->refocused));
 }
 
-bool image_pixel(const ViewerState& v, const StudioContext& ctx, float sx, float sy, int& x, int& y) {
+bool image_pixel(const ViewerState& v, const StudioContext& ctx, float sx, float sy, int& x,
+                 int& y) {
     if (v.img_w <= 0 || !ctx.source) return false;
     const float u = (sx - v.img_x) / v.img_w, w = (sy - v.img_y) / v.img_h;
     if (u < 0 || u >= 1 || w < 0 || w >= 1) return false;
@@ -53,7 +54,8 @@ void draw_mode_bar(ViewerState& v, StudioContext& ctx) {
     std::vector<const char*> labels;
     for (const ViewModeInfo& m : modes) labels.push_back(m.label);
     const int n = static_cast<int>(modes.size());
-    int a = static_cast<int>(v.split_a - modes.data()), b = static_cast<int>(v.split_b - modes.data());
+    int a = static_cast<int>(v.split_a - modes.data()),
+        b = static_cast<int>(v.split_b - modes.data());
     ImGui::SetNextItemWidth(110);
     bool ch = ImGui::Combo("left", &a, labels.data(), n);
     ImGui::SameLine();
@@ -73,8 +75,10 @@ void draw_mode_bar(ViewerState& v, StudioContext& ctx) {
 void zoom_and_pan(ViewerState& v, float scale) {
     const ImGuiIO& io = ImGui::GetIO();
     if (io.MouseWheel != 0.0f)
-        v.zoom = std::clamp((v.zoom > 0 ? v.zoom : scale) * std::pow(1.15f, io.MouseWheel), 0.1f, 16.0f);
-    if (ImGui::IsMouseDragging(ImGuiMouseButton_Middle) || ImGui::IsMouseDragging(ImGuiMouseButton_Right)) {
+        v.zoom =
+            std::clamp((v.zoom > 0 ? v.zoom : scale) * std::pow(1.15f, io.MouseWheel), 0.1f, 16.0f);
+    if (ImGui::IsMouseDragging(ImGuiMouseButton_Middle) ||
+        ImGui::IsMouseDragging(ImGuiMouseButton_Right)) {
         ImGui::SetScrollX(ImGui::GetScrollX() - io.MouseDelta.x);
         ImGui::SetScrollY(ImGui::GetScrollY() - io.MouseDelta.y);
     }
@@ -109,9 +113,11 @@ std::optional<ViewerClick> hover_image(ViewerState& v, StudioContext& ctx) {
 
 // The image, centred, at the zoom; returns a click while a pick is armed.
 std::optional<ViewerClick> draw_image(ViewerState& v, StudioContext& ctx, ImVec2 avail) {
-    const float scale = v.zoom > 0 ? v.zoom : std::min(avail.x / v.tex_w, std::max(avail.y, 1.0f) / v.tex_h);
+    const float scale =
+        v.zoom > 0 ? v.zoom : std::min(avail.x / v.tex_w, std::max(avail.y, 1.0f) / v.tex_h);
     const ImVec2 isz(v.tex_w * scale, v.tex_h * scale);
-    ImGui::BeginChild("image", avail, false, ImGuiWindowFlags_HorizontalScrollbar | ImGuiWindowFlags_NoScrollWithMouse);
+    ImGui::BeginChild("image", avail, false,
+                      ImGuiWindowFlags_HorizontalScrollbar | ImGuiWindowFlags_NoScrollWithMouse);
     const ImVec2 cur = ImGui::GetCursorScreenPos(), region = ImGui::GetContentRegionAvail();
     ImGui::SetCursorScreenPos(ImVec2(cur.x + std::max(0.0f, (region.x - isz.x) * 0.5f),
                                      cur.y + std::max(0.0f, (region.y - isz.y) * 0.5f)));
@@ -124,7 +130,8 @@ std::optional<ViewerClick> draw_image(ViewerState& v, StudioContext& ctx, ImVec2
     if (v.slice.on) {
         // The row the slice is taken from.
         const float ry = ip.y + (v.slice.row + 0.5f) * isz.y / v.tex_h;
-        ImGui::GetWindowDrawList()->AddLine(ImVec2(ip.x, ry), ImVec2(ip.x + isz.x, ry), IM_COL32(255, 200, 0, 160));
+        ImGui::GetWindowDrawList()->AddLine(ImVec2(ip.x, ry), ImVec2(ip.x + isz.x, ry),
+                                            IM_COL32(255, 200, 0, 160));
     }
     ImGui::EndChild();
     return click;
@@ -136,14 +143,16 @@ bool draw_placeholder(StudioContext& ctx) {
         if (!ctx.save_as_dir.empty())
             ImGui::Text("Saving the project as %s: copying its files ...", ctx.save_as_dir.c_str());
         else
-            ImGui::Text("Making the project %s: decoding the clip's frames ...", ctx.ingest_dir.c_str());
+            ImGui::Text("Making the project %s: decoding the clip's frames ...",
+                        ctx.ingest_dir.c_str());
         ImGui::ProgressBar(static_cast<float>(ctx.worker->status().job_progress), ImVec2(400, 0));
         return true;
     }
     if (!ctx.source) {
         ImGui::TextWrapped(
             "No project open.\n\nFile > New from clip... makes a project from a video or an image "
-            "sequence; File > Open... opens a project folder (try projects/sample after `refocus new "
+            "sequence; File > Open... opens a project folder (try projects/sample after `refocus "
+            "new "
             "projects/sample/input.mp4 -o out/sample`).");
         return true;
     }
@@ -161,13 +170,15 @@ void set_view_mode(ViewerState& v, StudioContext& ctx, const ViewModeInfo& mode)
 void poll_fit_output(ViewerState& v, AtlasPanel& atlas, StudioContext& ctx) {
     if (!ctx.doc.is_open()) return;
     const FitWorker::Status st = ctx.worker->status();
-    const bool fitted = st.state == FitWorker::State::Ready || st.state == FitWorker::State::Fitting ||
+    const bool fitted = st.state == FitWorker::State::Ready ||
+                        st.state == FitWorker::State::Fitting ||
                         st.state == FitWorker::State::Paused;
     if (!fitted) return;
     const double now = glfwGetTime();
     // Atlases: on every version change when idle, at most every 2 s while fitting.
     const bool fitting = st.state == FitWorker::State::Fitting;
-    if (st.snap.atlas_version != ctx.atlas_version && (!fitting || now - ctx.last_refresh_request > 2.0)) {
+    if (st.snap.atlas_version != ctx.atlas_version &&
+        (!fitting || now - ctx.last_refresh_request > 2.0)) {
         ctx.last_refresh_request = now;
         ctx.atlas_version = st.snap.atlas_version;
         ctx.worker->request_atlases();
@@ -243,7 +254,8 @@ std::optional<ViewerClick> draw_viewer(ViewerState& v, AtlasPanel& atlas, Studio
     const std::optional<ViewerClick> click = draw_image(v, ctx, avail);
     if (v.slice.on) {
         const bool output = v.mode->needs_fit && ctx.worker->has_engine();
-        if (v.slice.dirty) rebuild_time_slice(v.slice, ctx, output, output && ctx.depth && shows_refocused(v));
+        if (v.slice.dirty)
+            rebuild_time_slice(v.slice, ctx, output, output && ctx.depth && shows_refocused(v));
         poll_time_slice(v.slice);
         draw_time_slice(v.slice, ctx, avail.x, slice_h);
     }

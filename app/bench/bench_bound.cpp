@@ -90,7 +90,9 @@ struct Score {
         se += (d * mask).sum().item<double>();
         n += mask.sum().item<double>() * pred.size(0);
     }
-    double psnr() const { return n > 0 ? 10 * std::log10(255.0 * 255.0 * n / std::max(se, 1e-9)) : 0; }
+    double psnr() const {
+        return n > 0 ? 10 * std::log10(255.0 * 255.0 * n / std::max(se, 1e-9)) : 0;
+    }
 };
 
 // A synth clip whose camera only shakes: its passes and the shake per frame.
@@ -123,8 +125,9 @@ BoundClip load_bound_clip(const fs::path& clip, const std::string& sharp_dir) {
     bc.shake.resize(T);
     for (int t = 0; t < T; ++t) {
         if (std::abs(cam["pan"][t].get<double>()) > 1e-9)
-            throw Error(file_error(bc.json_path, "the camera pans (frame " + std::to_string(t) +
-                                                  "): this bound needs a camera that only shakes"));
+            throw Error(
+                file_error(bc.json_path, "the camera pans (frame " + std::to_string(t) +
+                                             "): this bound needs a camera that only shakes"));
         bc.shake[t] = {cam["shake_px"][t][0].get<double>(), cam["shake_px"][t][1].get<double>()};
     }
     auto path = [&](const fs::path& dir, const char* pass, int t, const char* ext) {
@@ -150,8 +153,8 @@ BoundClip load_bound_clip(const fs::path& clip, const std::string& sharp_dir) {
         for (int t = 0; t < T; ++t) {
             bc.sharp.push_back(load(path(sharp_dir, "sharp", t, "png"), true));
             if (bc.sharp.back().sizes() != truth[t].sizes())
-                throw Error(file_error(path(sharp_dir, "sharp", t, "png"),
-                                       "not the clip's frame size"));
+                throw Error(
+                    file_error(path(sharp_dir, "sharp", t, "png"), "not the clip's frame size"));
         }
     }
     bc.H = input[0].size(1);
@@ -167,7 +170,8 @@ struct WallBlur {
     torch::Tensor rad, kr;
 };
 
-WallBlur wall_blur(const BoundClip& bc, const std::vector<torch::Tensor>& wall_gt, const LensBlurParams& lp) {
+WallBlur wall_blur(const BoundClip& bc, const std::vector<torch::Tensor>& wall_gt,
+                   const LensBlurParams& lp) {
     const int T = bc.T;
     const int64_t H = bc.H, W = bc.W;
     const auto& coc = bc.coc;
@@ -179,7 +183,8 @@ WallBlur wall_blur(const BoundClip& bc, const std::vector<torch::Tensor>& wall_g
     const int64_t R = static_cast<int64_t>(std::ceil(lens_blur_support(cmax + 1, lp))) + 2;
     std::vector<double> table;
     const double step = 0.01;
-    for (double c = 0; c <= cmax + 2 * step; c += step) table.push_back(kernel_radius_for_coc(c, lp));
+    for (double c = 0; c <= cmax + 2 * step; c += step)
+        table.push_back(kernel_radius_for_coc(c, lp));
     auto to_kernel = [&](torch::Tensor c) {
         auto idx = (c / step).clamp(0, static_cast<double>(table.size() - 2));
         auto i0 = idx.floor();
@@ -211,9 +216,10 @@ WallBlur wall_blur(const BoundClip& bc, const std::vector<torch::Tensor>& wall_g
             spread = std::max(spread, (ct - rad).abs().masked_select(mm).max().item<double>());
     }
     if (spread > 0.25)
-        throw Error(file_error(json_path, "the wall's blur changes between frames (by up to " +
-                                              std::to_string(spread) +
-                                              " px; focus moves): this bound needs one blur per point"));
+        throw Error(
+            file_error(json_path, "the wall's blur changes between frames (by up to " +
+                                      std::to_string(spread) +
+                                      " px; focus moves): this bound needs one blur per point"));
     // Where no frame sees the wall, borrow the row's radius (the wall's blur follows its rows
     // in these scenes) so the operator stays defined; those pixels carry no data.
     auto seen = rcov > 1e-3;
@@ -257,14 +263,15 @@ int bench_bound(int argc, char** argv) {
     auto [B, bcov] = unshifted_mean(input, wall_in, shake, R);
     auto [A0, gcov] = unshifted_mean(truth, wall_gt, shake, R);
     auto data_w = torch::zeros({1, H + 2 * R, W + 2 * R}, torch::kFloat64);
-    data_w.index_put_({Slice(), Slice(R, R + H), Slice(R, R + W)},
-                      (bcov.index({Slice(), Slice(R, R + H), Slice(R, R + W)}) > 0.2)
-                          .to(torch::kFloat64));
+    data_w.index_put_(
+        {Slice(), Slice(R, R + H), Slice(R, R + W)},
+        (bcov.index({Slice(), Slice(R, R + H), Slice(R, R + W)}) > 0.2).to(torch::kFloat64));
     // The truth's power spectrum (channels averaged, 3x3 bins smoothed); the mean is free.
     const auto A0c = A0 - A0.mean({1, 2}, true);
     auto P = torch::fft::fft2(A0c).abs().pow(2).mean(0);
-    P = F::avg_pool2d(F::pad(P.unsqueeze(0).unsqueeze(0), F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kCircular)),
-                      F::AvgPool2dFuncOptions(3).stride(1))[0][0];
+    P = F::avg_pool2d(
+        F::pad(P.unsqueeze(0).unsqueeze(0), F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kCircular)),
+        F::AvgPool2dFuncOptions(3).stride(1))[0][0];
     P = P / static_cast<double>(P.numel());
     auto inv_p = (1.0 / P.clamp_min(1e-12));
     inv_p.index_put_({0, 0}, 0.0);
@@ -319,10 +326,11 @@ int bench_bound(int argc, char** argv) {
         for (int t = 0; t < T; ++t) s.add(frames[t], truth[t], eval_mask[t]);
         return s.psnr();
     };
-    std::printf("clip %s (%lldx%lld, %d frames): the wall away from the subject and the rim, "
-                "%.0f px a frame; blur %.2f-%.2f px\n",
-                clip.string().c_str(), static_cast<long long>(W), static_cast<long long>(H), T,
-                px / T, crop(rad).min().item<double>(), crop(rad).max().item<double>());
+    std::printf(
+        "clip %s (%lldx%lld, %d frames): the wall away from the subject and the rim, "
+        "%.0f px a frame; blur %.2f-%.2f px\n",
+        clip.string().c_str(), static_cast<long long>(W), static_cast<long long>(H), T, px / T,
+        crop(rad).min().item<double>(), crop(rad).max().item<double>());
     std::printf("%-44s %10s\n", "", "PSNR (dB)");
     std::printf("%-44s %10.2f\n", "input", score_frames(input));
     std::printf("%-44s %10.2f\n", "ceiling: the truth on one phase (1x atlas)", score_atlas(A0));

@@ -18,7 +18,7 @@ struct Row {
     double minutes = 0;
     int64_t step = 0;
     double psnr = 0, ssim = 0, tpsnr = 0, reblur_psnr = 0;
-    int frames_done = 0;                 // frames the figures cover
+    int frames_done = 0;                            // frames the figures cover
     double in_psnr = 0, in_ssim = 0, in_tpsnr = 0;  // the input's on the same frames
 };
 
@@ -73,14 +73,15 @@ Row evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<
 void print_bands(const Frames& f) {
     const std::vector<double> edges{0, .02, .04, .06, .08, .1, .13, .16, .2, .25, .3, .4, .5, .71};
     const auto out = error_by_band(f.sharp, f.gt, edges), in = error_by_band(f.input, f.gt, edges);
-    std::printf("error by spatial frequency (cycles/px; power sums over frames and channels, sRGB 8-bit "
-                "levels, Hann window):\n");
-    std::printf("%11s %12s %12s %7s %7s %12s %7s\n", "band", "truth power", "error", "share", "gain",
-                "input error", "gain");
+    std::printf(
+        "error by spatial frequency (cycles/px; power sums over frames and channels, sRGB 8-bit "
+        "levels, Hann window):\n");
+    std::printf("%11s %12s %12s %7s %7s %12s %7s\n", "band", "truth power", "error", "share",
+                "gain", "input error", "gain");
     for (size_t i = 0; i < out.size(); ++i)
         std::printf("  %.2f-%.2f %12.4g %12.4g %6.1f%% %7.3f %12.4g %7.3f\n", out[i].lo, out[i].hi,
-                    out[i].gt_power, out[i].err_power, 100 * out[i].err_share, out[i].gain, in[i].err_power,
-                    in[i].gain);
+                    out[i].gt_power, out[i].err_power, 100 * out[i].err_share, out[i].gain,
+                    in[i].err_power, in[i].gain);
 }
 
 std::vector<double> parse_times(const std::string& s) {
@@ -95,18 +96,24 @@ std::vector<double> parse_times(const std::string& s) {
 
 int bench_fit(int argc, char** argv) {
     Args a(argc, argv, 3, {"oracle-coc", "oracle-mask"});
-    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "coc", "oracle-mask", "mask", "at", "csv", "work", "seed", "batch", "set"});
+    a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "coc", "oracle-mask", "mask",
+                   "at", "csv", "work", "seed", "batch", "set"});
     if (!a.has("clip"))
-        throw Error("usage: refocus bench fit --clip <synth-dir> --preset " + preset_names() + " "
-                    "[--minutes M] [--oracle-coc | --coc <pattern>] [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv] [--batch N] [--set name=value]...");
+        throw Error(
+            "usage: refocus bench fit --clip <synth-dir> --preset " + preset_names() +
+            " "
+            "[--minutes M] [--oracle-coc | --coc <pattern>] [--oracle-mask | --mask <pattern>] "
+            "[--at 0.5,1,2,5,10] [--csv out.csv] [--batch N] [--set name=value]...");
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
     const std::string preset = a.get("preset", "fast");
     const double minutes = a.get_double("minutes", 10.0);
     const bool oracle = a.has("oracle-coc");
-    const fs::path work = a.get("work", (fs::temp_directory_path() / ("refocus_bench_" +
-                                         clip.filename().string() + "_" + preset)).string());
+    const fs::path work = a.get(
+        "work",
+        (fs::temp_directory_path() / ("refocus_bench_" + clip.filename().string() + "_" + preset))
+            .string());
     fs::remove_all(work);
     Project project = create_project((clip / "input_%04d.png").string(), work, {});
     std::vector<Image> gt = read_all_frames((clip / "sharp_%04d.png").string());
@@ -121,12 +128,16 @@ int bench_fit(int argc, char** argv) {
     s.fit.minutes = minutes;
     s.fit.iters = a.get_int("iters", 0);
     s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
-    if (a.has("batch")) s.fit.batch = checked_batch_arg(a.get_int("batch", 0));  // frames per step; left out: the model's choice
+    if (a.has("batch"))
+        s.fit.batch = checked_batch_arg(
+            a.get_int("batch", 0));  // frames per step; left out: the model's choice
     if (oracle) s.setup.coc_path = (clip / "coc_%04d.exr").string();
-    if (a.has("coc")) s.setup.coc_path = a.get("coc");  // radius maps to try (e.g. the truth scaled)
+    if (a.has("coc"))
+        s.setup.coc_path = a.get("coc");  // radius maps to try (e.g. the truth scaled)
     const bool oracle_mask = a.has("oracle-mask");
     if (oracle_mask) s.setup.mask_path = (clip / "alpha_%04d.png").string();
-    if (a.has("mask")) s.setup.mask_path = a.get("mask");  // masks to try (e.g. bench motion --dump)
+    if (a.has("mask"))
+        s.setup.mask_path = a.get("mask");  // masks to try (e.g. bench motion --dump)
     PrepareLog log([](const std::string& l) { std::fprintf(stderr, "  %s\n", l.c_str()); });
     auto data = build_fit_data(project, s.setup, log);
     FitEngine engine(data, s.fit);
@@ -136,13 +147,19 @@ int bench_fit(int argc, char** argv) {
     std::vector<Row> rows;
     const double in_psnr = mean_psnr(input, gt), in_ssim = mean_ssim(input, gt);
     const double in_t = gt.size() > 1 ? tpsnr(input, gt) : 0.0;
-    std::printf("clip %s (%dx%d, %d frames), preset %s, radius %s, masks %s\n", clip.string().c_str(),
-                project.width, project.height, project.frames, preset.c_str(),
-                oracle ? "ground truth (--coc)" : a.has("coc") ? a.get("coc").c_str() : "estimated",
-                oracle_mask ? "ground-truth alpha (--mask)" : a.has("mask") ? a.get("mask").c_str() : "automatic");
-    std::printf("input vs ground truth: PSNR %.2f dB  SSIM %.4f  tPSNR %.2f dB\n", in_psnr, in_ssim, in_t);
-    std::printf("%8s %7s %9s %7s %9s %12s %7s\n", "minutes", "step", "PSNR", "SSIM", "tPSNR", "reblur PSNR",
-                "frames");
+    std::printf("clip %s (%dx%d, %d frames), preset %s, radius %s, masks %s\n",
+                clip.string().c_str(), project.width, project.height, project.frames,
+                preset.c_str(),
+                oracle         ? "ground truth (--coc)"
+                : a.has("coc") ? a.get("coc").c_str()
+                               : "estimated",
+                oracle_mask     ? "ground-truth alpha (--mask)"
+                : a.has("mask") ? a.get("mask").c_str()
+                                : "automatic");
+    std::printf("input vs ground truth: PSNR %.2f dB  SSIM %.4f  tPSNR %.2f dB\n", in_psnr, in_ssim,
+                in_t);
+    std::printf("%8s %7s %9s %7s %9s %12s %7s\n", "minutes", "step", "PSNR", "SSIM", "tPSNR",
+                "reblur PSNR", "frames");
     size_t next = 0;
     while (!engine.done()) {
         engine.step();
@@ -151,8 +168,9 @@ int bench_fit(int argc, char** argv) {
             while (next < at.size() && el >= at[next]) ++next;
             rows.push_back(evaluate(engine, gt, input));
             const Row& r = rows.back();
-            std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f %4d/%d\n", r.minutes, (long long)r.step,
-                        r.psnr, r.ssim, r.tpsnr, r.reblur_psnr, r.frames_done, project.frames);
+            std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f %4d/%d\n", r.minutes,
+                        (long long)r.step, r.psnr, r.ssim, r.tpsnr, r.reblur_psnr, r.frames_done,
+                        project.frames);
             std::fflush(stdout);
         }
     }
@@ -167,10 +185,12 @@ int bench_fit(int argc, char** argv) {
                 r.psnr, r.ssim, r.tpsnr, r.reblur_psnr, r.frames_done, project.frames);
     std::printf("fitted project kept in %s\n", work.string().c_str());
     if (r.frames_done < project.frames)
-        std::printf("only %d of %d frames done: figures on those frames; input there: PSNR %.2f dB  "
-                    "SSIM %.4f  tPSNR %.2f dB\n",
-                    r.frames_done, project.frames, r.in_psnr, r.in_ssim, r.in_tpsnr);
-    std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - r.in_psnr, r.tpsnr - r.in_tpsnr);
+        std::printf(
+            "only %d of %d frames done: figures on those frames; input there: PSNR %.2f dB  "
+            "SSIM %.4f  tPSNR %.2f dB\n",
+            r.frames_done, project.frames, r.in_psnr, r.in_ssim, r.in_tpsnr);
+    std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - r.in_psnr,
+                r.tpsnr - r.in_tpsnr);
     if (!last.sharp.empty()) print_bands(last);
     if (a.has("csv")) {
         std::ostringstream csv;
@@ -178,10 +198,13 @@ int bench_fit(int argc, char** argv) {
                "frames_done,input_ssim\n";
         for (const Row& x : rows)
             csv << clip.filename().string() << "," << preset << ","
-                << (oracle ? "oracle" : a.has("coc") ? "given" : "estimated") << (oracle_mask ? "+mask" : "")
-                << "," << x.minutes << "," << x.step << "," << x.psnr << "," << x.ssim << ","
-                << x.tpsnr << "," << x.reblur_psnr << "," << x.in_psnr << "," << x.in_tpsnr << ","
-                << x.frames_done << "," << x.in_ssim << "\n";
+                << (oracle         ? "oracle"
+                    : a.has("coc") ? "given"
+                                   : "estimated")
+                << (oracle_mask ? "+mask" : "") << "," << x.minutes << "," << x.step << ","
+                << x.psnr << "," << x.ssim << "," << x.tpsnr << "," << x.reblur_psnr << ","
+                << x.in_psnr << "," << x.in_tpsnr << "," << x.frames_done << "," << x.in_ssim
+                << "\n";
         write_file_atomic(a.get("csv"), csv.str());
     }
     return 0;

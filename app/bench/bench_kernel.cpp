@@ -62,7 +62,9 @@ int bench_kernel(int argc, char** argv) {
     Args a(argc, argv, 3);
     a.check_known({"clip", "frames", "scales"});
     if (!a.has("clip"))
-        throw Error("usage: refocus bench kernel --clip <synth-dir> [--frames 0,10,20] [--scales 0.9,1,1.1]");
+        throw Error(
+            "usage: refocus bench kernel --clip <synth-dir> [--frames 0,10,20] [--scales "
+            "0.9,1,1.1]");
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
@@ -90,8 +92,9 @@ int bench_kernel(int argc, char** argv) {
                 // Interior: no silhouette within the largest blur support (+3 px).
                 const int R = static_cast<int>(std::ceil(coc.max().item<double>() * s)) + 3;
                 auto edge = (alpha > 0.02) & (alpha < 0.98);
-                auto near = F::max_pool2d(edge.to(torch::kFloat32).unsqueeze(0).unsqueeze(0),
-                                          F::MaxPool2dFuncOptions(2 * R + 1).stride(1).padding(R))[0][0];
+                auto near =
+                    F::max_pool2d(edge.to(torch::kFloat32).unsqueeze(0).unsqueeze(0),
+                                  F::MaxPool2dFuncOptions(2 * R + 1).stride(1).padding(R))[0][0];
                 auto interior = 1.0 - near;
                 // Also leave out the frame border band (light from outside the frame).
                 interior.narrow(0, 0, R).zero_();

@@ -67,8 +67,8 @@ std::vector<Map> blur_maps(int H, int W) {
 // refocus bench blur
 int bench_blur(int argc, char** argv) {
     Args a(argc, argv, 3, {"no-tensor"});
-    a.check_known({"size", "kernel", "beta", "kappa", "reps", "tensor-reps", "no-tensor",
-                   "tensor-max-gb"});
+    a.check_known(
+        {"size", "kernel", "beta", "kappa", "reps", "tensor-reps", "no-tensor", "tensor-max-gb"});
     int W = 512, H = 288;
     std::string size = a.get("size", "512x288");
     if (std::sscanf(size.c_str(), "%dx%d", &W, &H) != 2 || W < 1 || H < 1)
@@ -87,16 +87,17 @@ int bench_blur(int argc, char** argv) {
     torch::Tensor img = torch::rand({3, H, W}, torch::kFloat);
     torch::Tensor wgt = torch::randn({3, H, W}, torch::kFloat);  // loss = Σ out·wgt
 
-    std::printf("refocus bench blur: %dx%dx3 float32, %s kernel, beta %g, %d threads, "
-                "median of %d (tensor ops: %d)\n",
-                W, H, a.get("kernel", "disk").c_str(), p.beta, at::get_num_threads(), reps,
-                treps);
-    std::printf("taps: (source pixel, tap) pairs visited per pass; f+b counts both passes.\n"
-                "tensor ops visit the whole (2R_max+1)^2 window; ratio = tensor time / fast "
-                "time.\n\n");
-    std::printf("%-11s %7s | %9s %7s | %9s %7s | %10s %10s | %7s %7s | %9s %9s\n", "map",
-                "taps/px", "fwd ms", "Gtap/s", "f+b ms", "Gtap/s", "T fwd ms", "T f+b ms",
-                "x fwd", "x f+b", "max|dOut|", "rel|dGr|");
+    std::printf(
+        "refocus bench blur: %dx%dx3 float32, %s kernel, beta %g, %d threads, "
+        "median of %d (tensor ops: %d)\n",
+        W, H, a.get("kernel", "disk").c_str(), p.beta, at::get_num_threads(), reps, treps);
+    std::printf(
+        "taps: (source pixel, tap) pairs visited per pass; f+b counts both passes.\n"
+        "tensor ops visit the whole (2R_max+1)^2 window; ratio = tensor time / fast "
+        "time.\n\n");
+    std::printf("%-11s %7s | %9s %7s | %9s %7s | %10s %10s | %7s %7s | %9s %9s\n", "map", "taps/px",
+                "fwd ms", "Gtap/s", "f+b ms", "Gtap/s", "T fwd ms", "T f+b ms", "x fwd", "x f+b",
+                "max|dOut|", "rel|dGr|");
 
     for (const Map& m : blur_maps(H, W)) {
         const int64_t taps = lens_blur_tap_count(m.radius, p);
@@ -156,25 +157,25 @@ int bench_blur(int argc, char** argv) {
                 double scale = std::max(gr_fast.abs().max().item<double>(), 1e-30);
                 std::snprintf(buf, sizeof buf, "%.1e",
                               (gr_t - gr_fast).abs().max().item<double>() / scale);
-                d_gr = gr_fast.abs().max().item<double>() == 0 &&
-                               gr_t.abs().max().item<double>() == 0
-                           ? "0"
-                           : buf;
+                d_gr =
+                    gr_fast.abs().max().item<double>() == 0 && gr_t.abs().max().item<double>() == 0
+                        ? "0"
+                        : buf;
             } else {
                 std::snprintf(buf, sizeof buf, "skip%.0fGB", est_gb);
                 t_fb_s = buf;
             }
         }
         std::printf("%-11s %7.1f | %9.2f %7.3f | %9.2f %7.3f | %10s %10s | %7s %7s | %9s %9s\n",
-                    m.name.c_str(), double(taps) / (double(H) * W), t_fwd * 1e3,
-                    taps / t_fwd / 1e9, t_fb * 1e3, 2.0 * taps / t_fb / 1e9, t_fwd_s.c_str(),
-                    t_fb_s.c_str(), x_fwd_s.c_str(), x_fb_s.c_str(), d_out.c_str(),
-                    d_gr.c_str());
+                    m.name.c_str(), double(taps) / (double(H) * W), t_fwd * 1e3, taps / t_fwd / 1e9,
+                    t_fb * 1e3, 2.0 * taps / t_fb / 1e9, t_fwd_s.c_str(), t_fb_s.c_str(),
+                    x_fwd_s.c_str(), x_fb_s.c_str(), d_out.c_str(), d_gr.c_str());
         std::fflush(stdout);
     }
-    std::printf("\nmax|dOut|: fast vs tensor-ops output; rel|dGr|: radius gradients, relative "
-                "to max|grad|.\nskipNGB: tensor-ops f+b would need about N GB (raise "
-                "--tensor-max-gb).\n");
+    std::printf(
+        "\nmax|dOut|: fast vs tensor-ops output; rel|dGr|: radius gradients, relative "
+        "to max|grad|.\nskipNGB: tensor-ops f+b would need about N GB (raise "
+        "--tensor-max-gb).\n");
     return 0;
 }
 
@@ -191,8 +192,10 @@ const Bench kBenches[] = {
      "             [--tensor-reps N] [--no-tensor] [--tensor-max-gb G]\n"
      "             lens blur layer: fast path vs LibTorch tensor ops"},
     {"fit", bench_fit,
-     "fit --clip <synth-dir> [--preset P] [--minutes M] [--iters N] [--oracle-coc | --coc <pattern>]\n"
-     "             [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv] [--batch N]\n"
+     "fit --clip <synth-dir> [--preset P] [--minutes M] [--iters N] [--oracle-coc | --coc "
+     "<pattern>]\n"
+     "             [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv] [--batch "
+     "N]\n"
      "             [--seed S] [--work <dir>] [--set name=value]...\n"
      "             run time against error: sharp PSNR/SSIM/tPSNR vs ground truth, reblur PSNR"},
     {"motion", bench_motion,
@@ -203,7 +206,8 @@ const Bench kBenches[] = {
      "             how well each blur kernel reblurs the clip's ground truth into its input"},
     {"bound", bench_bound,
      "bound --clip <synth-dir> [--sharp <dir>] [--lambdas 1e-6,1e-5] [--iters 300]\n"
-     "             the wall's best 1x atlas and best linear (Wiener) deconvolution, given the truth"},
+     "             the wall's best 1x atlas and best linear (Wiener) deconvolution, given the "
+     "truth"},
 };
 
 }  // namespace

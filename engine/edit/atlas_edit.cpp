@@ -28,15 +28,17 @@ void AtlasEditor::Rect::add(const Rect& o) {
         *this = o;
         return;
     }
-    x0 = std::min(x0, o.x0), y0 = std::min(y0, o.y0), x1 = std::max(x1, o.x1), y1 = std::max(y1, o.y1);
+    x0 = std::min(x0, o.x0), y0 = std::min(y0, o.y0), x1 = std::max(x1, o.x1),
+    y1 = std::max(y1, o.y1);
 }
 
 namespace {
-[[noreturn]] void size_error(const std::string& label, int ew, int eh, const char* what, int w, int h) {
+[[noreturn]] void size_error(const std::string& label, int ew, int eh, const char* what, int w,
+                             int h) {
     throw Error(file_error(label.empty() ? "atlas edit" : label,
-                           "the edit is " + std::to_string(ew) + "x" + std::to_string(eh) + " but " +
-                               what + " is " + std::to_string(w) + "x" + std::to_string(h) +
-                               " (clear it: refocus atlas <project> --clear)"));
+                           "the edit is " + std::to_string(ew) + "x" + std::to_string(eh) +
+                               " but " + what + " is " + std::to_string(w) + "x" +
+                               std::to_string(h) + " (clear it: refocus atlas <project> --clear)"));
 }
 }  // namespace
 
@@ -58,7 +60,8 @@ Image rescale_edit(const Image& e, int w, int h) {
     pm = w > e.width ? F::interpolate(pm, opts.mode(torch::kBilinear).align_corners(false))
                      : F::interpolate(pm, opts.mode(torch::kArea));
     auto na = pm.narrow(1, 3, 1);
-    auto rgb = torch::where(na > 1e-6, pm.narrow(1, 0, 3) / na.clamp_min(1e-6), torch::zeros_like(pm.narrow(1, 0, 3)));
+    auto rgb = torch::where(na > 1e-6, pm.narrow(1, 0, 3) / na.clamp_min(1e-6),
+                            torch::zeros_like(pm.narrow(1, 0, 3)));
     return tensor_to_image(torch::cat({rgb, na.clamp(0, 1)}, 1)[0].contiguous());
 }
 }  // namespace
@@ -66,7 +69,8 @@ Image rescale_edit(const Image& e, int w, int h) {
 void AtlasEditor::set_base(const Image& base) {
     if (base.empty()) throw Error("atlas editor: empty base atlas");
     Image b = base.channels == 3 ? base : to_rgb(base);
-    if (m_edit.empty() || ((b.width != m_edit.width || b.height != m_edit.height) && !has_edits())) {
+    if (m_edit.empty() ||
+        ((b.width != m_edit.width || b.height != m_edit.height) && !has_edits())) {
         end_stroke();
         m_edit = Image(b.width, b.height, 4, 0.0f);
         m_undo.clear(), m_redo.clear(), m_history_bytes = 0;
@@ -237,7 +241,8 @@ void AtlasEditor::stroke_pixel(int x, int y, float cov) {
         return;
     }
     const float a = cov + b[3] * (1.0f - cov);  // "over", straight alpha
-    for (int k = 0; k < 3; ++k) e[k] = a > 0.0f ? (col[k] * cov + b[k] * b[3] * (1.0f - cov)) / a : 0.0f;
+    for (int k = 0; k < 3; ++k)
+        e[k] = a > 0.0f ? (col[k] * cov + b[k] * b[3] * (1.0f - cov)) / a : 0.0f;
     e[3] = a;
 }
 
@@ -308,7 +313,8 @@ int64_t AtlasEditor::import_image(const std::string& path) {
     for (size_t i = 0; i < size_t(img.width) * img.height; ++i) {
         bool differs = false;
         for (int c = 0; c < 3; ++c)
-            differs |= std::abs(enc(img.pixels[3 * i + c]) - enc(m_base.pixels[3 * i + c])) > 0.75f / 255;
+            differs |=
+                std::abs(enc(img.pixels[3 * i + c]) - enc(m_base.pixels[3 * i + c])) > 0.75f / 255;
         if (!differs) continue;
         std::copy_n(&img.pixels[3 * i], 3, &next.pixels[4 * i]);
         next.pixels[4 * i + 3] = 1.0f;
@@ -326,8 +332,8 @@ void AtlasEditor::load_edit(const std::string& path) {
     Image e = read_image_file(path, false).image;
     m_label = path;
     if (e.channels != 4)
-        throw Error(file_error(path, "an atlas edit must be RGBA (has " +
-                                         std::to_string(e.channels) + " channels)"));
+        throw Error(file_error(
+            path, "an atlas edit must be RGBA (has " + std::to_string(e.channels) + " channels)"));
     if (!m_base.empty() && (e.width != m_base.width || e.height != m_base.height))
         size_error(path, e.width, e.height, "the fitted atlas", m_base.width, m_base.height);
     end_stroke();
@@ -369,12 +375,15 @@ ProjectEdits ProjectEdits::load(const Project& p) {
             if (!sec->contains(kLayerName[i])) continue;
             const auto& v = sec->at(kLayerName[i]);
             if (!v.is_string())
-                throw Error(file_error(p.project_file().string(), std::string("field 'edits.") +
-                                                                      kLayerName[i] + "' must be a string"));
+                throw Error(file_error(
+                    p.project_file().string(),
+                    std::string("field 'edits.") + kLayerName[i] + "' must be a string"));
             f = p.dir / v.get<std::string>();
         }
-        if (fs::exists(f)) out.layer(i).load_edit(f.string());
-        else out.layer(i).m_label = f.string();
+        if (fs::exists(f))
+            out.layer(i).load_edit(f.string());
+        else
+            out.layer(i).m_label = f.string();
     }
     return out;
 }

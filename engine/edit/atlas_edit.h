@@ -23,9 +23,9 @@ namespace refocus {
 struct Brush {
     enum Mode { Paint, Erase, Clone };
     float color[3] = {1.0f, 1.0f, 1.0f};  // linear RGB
-    float size = 16.0f;                     // diameter, atlas px
-    float hardness = 0.8f;                  // 0 (soft falloff from the centre) .. 1 (hard edge)
-    float opacity = 1.0f;                   // max coverage within a stroke (flow 100%)
+    float size = 16.0f;                   // diameter, atlas px
+    float hardness = 0.8f;                // 0 (soft falloff from the centre) .. 1 (hard edge)
+    float opacity = 1.0f;                 // max coverage within a stroke (flow 100%)
     Mode mode = Paint;
     float clone_dx = 0.0f, clone_dy = 0.0f;  // Clone: source = target + (dx, dy)
 };
@@ -34,14 +34,14 @@ struct Brush {
 float dab_coverage(float d, float size, float hardness);
 
 class AtlasEditor {
-public:
+  public:
     // The fitted atlas (3-channel linear; 1/4 channels are converted). May be called again as
     // training updates it: the edit is kept. The first call sizes an empty edit; a loaded edit
     // of another size is refused (refocus::Error naming its file and both sizes) unless empty.
     void set_base(const Image& base);
     const Image& base() const { return m_base; }
     const Image& edit() const { return m_edit; }  // RGBA, straight alpha, atlas size
-    Image result() const;                          // edit over base
+    Image result() const;                         // edit over base
     bool has_edits() const;
     int width() const { return m_edit.width; }
     int height() const { return m_edit.height; }
@@ -82,7 +82,7 @@ public:
     // without edits. Refuses a base of another size (naming the edit's file).
     torch::Tensor delta(const torch::Tensor& base_chw) const;
 
-private:
+  private:
     friend struct ProjectEdits;
     struct Rect {
         int x0 = 0, y0 = 0, x1 = 0, y1 = 0;  // [x0,x1) × [y0,y1)

@@ -31,10 +31,13 @@ inline float sample1(const Image& atlas, float u, float v) {
 // ---------------------------------------------------------------- sampling
 
 namespace {
-int clamp_frame(int t, int frames) { return std::clamp(t, 0, std::max(frames - 1, 0)); }
+int clamp_frame(int t, int frames) {
+    return std::clamp(t, 0, std::max(frames - 1, 0));
+}
 
 void check_uv(const Image& uv, const char* what) {
-    if (uv.channels != 2) throw Error(std::string("depth: the ") + what + " UV map needs 2 channels");
+    if (uv.channels != 2)
+        throw Error(std::string("depth: the ") + what + " UV map needs 2 channels");
 }
 }  // namespace
 
@@ -51,14 +54,16 @@ PreviewDepth DepthModel::frame_depth(int t, const Image& uv_bg, const Image& uv_
     out.background = sample(bg_atlas, uv_bg, 0.0f);
     if (has_fg() && !uv_fg.empty()) {
         check_uv(uv_fg, "foreground");
-        out.foreground = sample(fg_atlas, uv_fg, fg_offset.empty() ? 0.0f : fg_offset[clamp_frame(t, frames())]);
+        out.foreground =
+            sample(fg_atlas, uv_fg, fg_offset.empty() ? 0.0f : fg_offset[clamp_frame(t, frames())]);
     }
     return out;
 }
 
 float DepthModel::depth_at_atlas(int layer, float u, float v, int t) const {
     if (layer == Foreground && has_fg())
-        return sample1(fg_atlas, u, v) + (fg_offset.empty() ? 0.0f : fg_offset[clamp_frame(t, frames())]);
+        return sample1(fg_atlas, u, v) +
+               (fg_offset.empty() ? 0.0f : fg_offset[clamp_frame(t, frames())]);
     return sample1(bg_atlas, u, v);
 }
 
@@ -72,11 +77,13 @@ float DepthModel::depth_at_pixel(int t, int x, int y, const Image& uv_bg, const 
     return depth_at_atlas(Background, uv_bg.at(x, y, 0), uv_bg.at(x, y, 1), t);
 }
 
-Image DepthModel::depth_map(int t, const Image& uv_bg, const Image& uv_fg, const Image& alpha) const {
+Image DepthModel::depth_map(int t, const Image& uv_bg, const Image& uv_fg,
+                            const Image& alpha) const {
     check_uv(uv_bg, "background");
     Image out(uv_bg.width, uv_bg.height, 1);
     for (int y = 0; y < out.height; ++y)
-        for (int x = 0; x < out.width; ++x) out.at(x, y, 0) = depth_at_pixel(t, x, y, uv_bg, uv_fg, alpha);
+        for (int x = 0; x < out.width; ++x)
+            out.at(x, y, 0) = depth_at_pixel(t, x, y, uv_bg, uv_fg, alpha);
     return out;
 }
 
@@ -88,25 +95,31 @@ const char* kBg = "depth_bg.exr";
 const char* kFg = "depth_fg.exr";
 }  // namespace
 
-bool DepthModel::exists(const fs::path& dir) { return fs::exists(dir / kJson); }
+bool DepthModel::exists(const fs::path& dir) {
+    return fs::exists(dir / kJson);
+}
 
 void DepthModel::save(const fs::path& dir) const {
-    if (bg_atlas.empty() || bg_atlas.channels != 1 || focus.empty() || fg_offset.size() != focus.size())
-        throw Error(file_error((dir / kJson).string(), "refusing to save an incomplete depth model"));
+    if (bg_atlas.empty() || bg_atlas.channels != 1 || focus.empty() ||
+        fg_offset.size() != focus.size())
+        throw Error(
+            file_error((dir / kJson).string(), "refusing to save an incomplete depth model"));
     std::error_code ec;
     fs::create_directories(dir, ec);
     write_image_file((dir / kBg).string(), bg_atlas, PixelFormat::ExrFloat, false);
     if (has_fg()) write_image_file((dir / kFg).string(), fg_atlas, PixelFormat::ExrFloat, false);
-    json j = {{"version", kVersion},
-              {"frames", frames()},
-              {"bg", {{"file", kBg}, {"width", bg_atlas.width}, {"height", bg_atlas.height}}},
-              {"fg", nullptr},
-              {"focus", focus},
-              {"fg_offset", fg_offset},
-              {"rms_px", rms_px},
-              {"rounds", rounds},
-              {"fit_step", fit_step},
-              {"units", "inverse depth in px of blur radius at the clip's aperture (seed 001 eq. 1.12, A = 1)"}};
+    json j = {
+        {"version", kVersion},
+        {"frames", frames()},
+        {"bg", {{"file", kBg}, {"width", bg_atlas.width}, {"height", bg_atlas.height}}},
+        {"fg", nullptr},
+        {"focus", focus},
+        {"fg_offset", fg_offset},
+        {"rms_px", rms_px},
+        {"rounds", rounds},
+        {"fit_step", fit_step},
+        {"units",
+         "inverse depth in px of blur radius at the clip's aperture (seed 001 eq. 1.12, A = 1)"}};
     if (has_fg()) j["fg"] = {{"file", kFg}, {"width", fg_atlas.width}, {"height", fg_atlas.height}};
     write_file_atomic(dir / kJson, j.dump(2) + "\n");  // last: the model is complete when it exists
     if (!has_fg()) fs::remove(dir / kFg, ec);
@@ -142,12 +155,13 @@ DepthModel DepthModel::load(const fs::path& dir) {
             bad(std::string("'") + key + "' must hold a positive integer width and height");
         const std::string path = (dir / file).string();
         Image img = read_image_file(path, false, NonFinitePolicy::Reject).image;
-        if (img.channels != 1 || img.width != a["width"].get<int>() || img.height != a["height"].get<int>())
+        if (img.channels != 1 || img.width != a["width"].get<int>() ||
+            img.height != a["height"].get<int>())
             throw Error(file_error(path, "is " + std::to_string(img.width) + "x" +
                                              std::to_string(img.height) + "x" +
-                                             std::to_string(img.channels) + ", " + kJson + " says " +
-                                             std::to_string(a["width"].get<int>()) + "x" +
-                                             std::to_string(a["height"].get<int>()) + "x1"));
+                                             std::to_string(img.channels) + ", " + kJson +
+                                             " says " + std::to_string(a["width"].get<int>()) +
+                                             "x" + std::to_string(a["height"].get<int>()) + "x1"));
         return img;
     };
     try {

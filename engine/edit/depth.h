@@ -55,22 +55,22 @@ class FitEngine;
 
 struct DepthFitOptions {
     int max_rounds = 12;
-    double tie_px2 = 0.01;        // side-of-focus ties: mean squared error difference, px²
-    int focus_samples = 20000;    // pixels per frame used by the focus/offset updates (strided)
-    double stop_rel = 1e-4;       // stop when a round lowers the cost by less than this share
+    double tie_px2 = 0.01;      // side-of-focus ties: mean squared error difference, px²
+    int focus_samples = 20000;  // pixels per frame used by the focus/offset updates (strided)
+    double stop_rel = 1e-4;     // stop when a round lowers the cost by less than this share
 };
 
 struct DepthModel {
     static constexpr int kVersion = 1;
     enum Layer { Background = 0, Foreground = 1 };
 
-    Image bg_atlas;                 // 1 channel inverse depth at the background atlas' size
-    Image fg_atlas;                 // 1 channel at the foreground atlas' size; empty: one layer
-    std::vector<float> focus;       // f_t per frame (inverse depth in focus as shot)
-    std::vector<float> fg_offset;   // o_t per frame (0 with one layer)
-    double rms_px = 0.0;            // rms of r − |d − f| over the fitted pixels, px
-    int rounds = 0;                 // alternating rounds run
-    int64_t fit_step = -1;          // the fit's step it was built from (-1: unknown)
+    Image bg_atlas;                // 1 channel inverse depth at the background atlas' size
+    Image fg_atlas;                // 1 channel at the foreground atlas' size; empty: one layer
+    std::vector<float> focus;      // f_t per frame (inverse depth in focus as shot)
+    std::vector<float> fg_offset;  // o_t per frame (0 with one layer)
+    double rms_px = 0.0;           // rms of r − |d − f| over the fitted pixels, px
+    int rounds = 0;                // alternating rounds run
+    int64_t fit_step = -1;         // the fit's step it was built from (-1: unknown)
 
     int frames() const { return static_cast<int>(focus.size()); }
     bool has_fg() const { return !fg_atlas.empty(); }
@@ -105,7 +105,9 @@ DepthModel fit_depth(const torch::Tensor& radius, const torch::Tensor& uv_bg,
 DepthModel build_depth(FitEngine& engine, const DepthFitOptions& opts = {});
 
 // A project's depth folder: <project>/depth.
-inline fs::path depth_dir(const fs::path& project_dir) { return project_dir / "depth"; }
+inline fs::path depth_dir(const fs::path& project_dir) {
+    return project_dir / "depth";
+}
 
 // The project's depth for the engine's current fit: <project>/depth when it was built from this
 // fit step for this many frames, else built (build_depth) and saved there. `built` tells which.

@@ -65,7 +65,8 @@ Solution solve_abs(std::vector<Obs>& obs, double tie) {
     for (const Cand& c : cands)
         if (c.cost < best) best = c.cost, sol.best = c.z;
     for (const Cand& c : cands)
-        if (c.cost <= best + tie * W) sol.lo = std::min(sol.lo, c.z), sol.hi = std::max(sol.hi, c.z);
+        if (c.cost <= best + tie * W)
+            sol.lo = std::min(sol.lo, c.z), sol.hi = std::max(sol.hi, c.z);
     return sol;
 }
 
@@ -109,14 +110,14 @@ void fill_unseen(std::vector<float>& v, const std::vector<float>& w, int W, int 
 // One atlas layer during the fit: texel depths and the frames' observations of each texel.
 struct LayerFit {
     int W = 0, H = 0;
-    std::vector<float> d;                 // [H·W] inverse depth
-    std::vector<float> seen;              // [H·W] total splat weight
-    std::vector<int> start;               // CSR offsets into obs, [H·W + 1]
+    std::vector<float> d;     // [H·W] inverse depth
+    std::vector<float> seen;  // [H·W] total splat weight
+    std::vector<int> start;   // CSR offsets into obs, [H·W + 1]
     struct TexObs {
         int t;
         float w, r;  // splat weight, weighted mean radius
     };
-    std::vector<TexObs> obs;              // sorted by texel, then frame
+    std::vector<TexObs> obs;  // sorted by texel, then frame
 };
 
 // A frame pixel used by the focus/offset updates.
@@ -158,7 +159,8 @@ std::vector<double> initial_focus(const LayerFit& L, int T) {
     }
     auto radius_at = [&](int x, int t) -> float {  // obs of texel x are sorted by frame
         auto b = L.obs.begin() + L.start[x], e = L.obs.begin() + L.start[x + 1];
-        auto it = std::lower_bound(b, e, t, [](const LayerFit::TexObs& o, int tt) { return o.t < tt; });
+        auto it =
+            std::lower_bound(b, e, t, [](const LayerFit::TexObs& o, int tt) { return o.t < tt; });
         return (it != e && it->t == t) ? it->r : std::numeric_limits<float>::quiet_NaN();
     };
     std::vector<double> D(size_t(T) * T, std::numeric_limits<double>::quiet_NaN());
@@ -177,7 +179,9 @@ std::vector<double> initial_focus(const LayerFit& L, int T) {
     for (int t = 0; t < T; ++t)
         for (int u = 0; u < T; ++u) {
             const double a = D[size_t(t) * T + u], b = D[size_t(u) * T + t];
-            double s = std::isfinite(a) && std::isfinite(b) ? 0.5 * (a + b) : std::isfinite(a) ? a : b;
+            double s = std::isfinite(a) && std::isfinite(b) ? 0.5 * (a + b)
+                       : std::isfinite(a)                   ? a
+                                                            : b;
             if (t == u) s = 0;
             D[size_t(t) * T + u] = s;
             if (std::isfinite(s)) sum += s, ++n;
@@ -196,8 +200,8 @@ std::vector<double> initial_focus(const LayerFit& L, int T) {
         }
     for (int t = 0; t < T; ++t)
         for (int u = 0; u < T; ++u)
-            B[size_t(t) * T + u] = -0.5 * (D[size_t(t) * T + u] * D[size_t(t) * T + u] - row[t] -
-                                          col[u] + all);
+            B[size_t(t) * T + u] =
+                -0.5 * (D[size_t(t) * T + u] * D[size_t(t) * T + u] - row[t] - col[u] + all);
     std::vector<double> v(T), nv(T);
     for (int t = 0; t < T; ++t) v[t] = 1.0 + 0.01 * t;  // not orthogonal to a ramp
     double lambda = 0;
@@ -249,7 +253,8 @@ std::vector<std::vector<Px>> splat_pixels(const DepthInput& in, LayerFit* layers
     const float* UF = in.UF;
     const float* AL = in.AL;
     const size_t HW = in.HW;
-    const int step = std::max(1, int(std::ceil(std::sqrt(double(HW) / std::max(1, focus_samples)))));
+    const int step =
+        std::max(1, int(std::ceil(std::sqrt(double(HW) / std::max(1, focus_samples)))));
     std::vector<std::vector<Px>> px(T);
     std::vector<std::vector<float>> sw(nl), swr(nl);
     std::vector<std::vector<std::pair<int, LayerFit::TexObs>>> raw(nl);
@@ -271,8 +276,8 @@ std::vector<std::vector<Px>> splat_pixels(const DepthInput& in, LayerFit* layers
                 preview_atlas_coord(uv[1], L.H, p.y0, p.y1, p.fy);
                 p.r = std::max(r, 0.0f);
                 p.fg = fg;
-                const float wts[4] = {(1 - p.fx) * (1 - p.fy), p.fx * (1 - p.fy),
-                                      (1 - p.fx) * p.fy, p.fx * p.fy};
+                const float wts[4] = {(1 - p.fx) * (1 - p.fy), p.fx * (1 - p.fy), (1 - p.fx) * p.fy,
+                                      p.fx * p.fy};
                 const size_t tex[4] = {size_t(p.y0) * L.W + p.x0, size_t(p.y0) * L.W + p.x1,
                                        size_t(p.y1) * L.W + p.x0, size_t(p.y1) * L.W + p.x1};
                 for (int k = 0; k < 4; ++k) {
@@ -318,7 +323,14 @@ struct AlternatingFit {
 
     AlternatingFit(LayerFit* layers_, int nl_, int T_, bool two_,
                    const std::vector<std::vector<Px>>& px_, const DepthFitOptions& opts_)
-        : layers(layers_), nl(nl_), T(T_), two(two_), px(px_), opts(opts_), f(T_, 0.0), o(T_, 0.0) {}
+        : layers(layers_),
+          nl(nl_),
+          T(T_),
+          two(two_),
+          px(px_),
+          opts(opts_),
+          f(T_, 0.0),
+          o(T_, 0.0) {}
 
     // Texels: exact per-texel solve. Where the side of the focal plane is ambiguous (seen at one
     // focus only), the side of the confident neighbours (push-pull of the texels the data
@@ -347,7 +359,8 @@ struct AlternatingFit {
             for (size_t x = 0; x < n; ++x)
                 if (L.seen[x] > 0 && !(confident[x] > 0)) {
                     const Solution& s = sols[x];
-                    const double mid = 0.5 * (s.lo + s.hi), off = any_confident ? ref[x] - mid : 0.0;
+                    const double mid = 0.5 * (s.lo + s.hi),
+                                 off = any_confident ? ref[x] - mid : 0.0;
                     const bool hi = std::fabs(off) > 0.25 * (s.hi - s.lo) ? off > 0 : l == 1;
                     L.d[x] = float(hi ? s.hi : s.lo);
                 }
@@ -495,7 +508,8 @@ double rms_over_pixels(const DepthInput& in, const DepthModel& m) {
 DepthModel fit_depth(const torch::Tensor& radius_in, const torch::Tensor& uv_bg_in,
                      const torch::Tensor& uv_fg_in, const torch::Tensor& alpha_in, int bg_h,
                      int bg_w, int fg_h, int fg_w, const DepthFitOptions& opts) {
-    if (!radius_in.defined() || radius_in.dim() != 3) throw Error("fit_depth: radius must be [T,H,W]");
+    if (!radius_in.defined() || radius_in.dim() != 3)
+        throw Error("fit_depth: radius must be [T,H,W]");
     const int T = int(radius_in.size(0)), H = int(radius_in.size(1)), Wd = int(radius_in.size(2));
     if (T < 1 || H < 1 || Wd < 1 || bg_h < 1 || bg_w < 1) throw Error("fit_depth: empty input");
     const bool two = uv_fg_in.defined() && alpha_in.defined() && fg_h > 0 && fg_w > 0;
@@ -567,10 +581,10 @@ DepthModel build_depth(FitEngine& engine, const DepthFitOptions& opts) {
         step = engine.snapshot().step;
     }
     const bool two = afg.defined() && int(uf.size()) == data.frames;
-    DepthModel m = fit_depth(data.radius, torch::cat(ub), two ? torch::cat(uf) : torch::Tensor(),
-                             two ? torch::cat(al) : torch::Tensor(), int(abg.size(1)),
-                             int(abg.size(2)), two ? int(afg.size(1)) : 0,
-                             two ? int(afg.size(2)) : 0, opts);
+    DepthModel m =
+        fit_depth(data.radius, torch::cat(ub), two ? torch::cat(uf) : torch::Tensor(),
+                  two ? torch::cat(al) : torch::Tensor(), int(abg.size(1)), int(abg.size(2)),
+                  two ? int(afg.size(1)) : 0, two ? int(afg.size(2)) : 0, opts);
     m.fit_step = step;
     return m;
 }

@@ -14,9 +14,12 @@ using nlohmann::json;
 
 const char* easing_name(Easing e) {
     switch (e) {
-        case Easing::Linear: return "linear";
-        case Easing::EaseInOut: return "ease_in_out";
-        case Easing::Hold: return "hold";
+        case Easing::Linear:
+            return "linear";
+        case Easing::EaseInOut:
+            return "ease_in_out";
+        case Easing::Hold:
+            return "hold";
     }
     return "?";
 }
@@ -31,9 +34,12 @@ double Lane::eval(double frame, double fallback) const {
     const Keyframe& b = *next;
     const double s = (frame - a.frame) / double(b.frame - a.frame);
     switch (a.easing) {
-        case Easing::Hold: return a.value;
-        case Easing::EaseInOut: return a.value + s * s * (3 - 2 * s) * (b.value - a.value);
-        case Easing::Linear: break;
+        case Easing::Hold:
+            return a.value;
+        case Easing::EaseInOut:
+            return a.value + s * s * (3 - 2 * s) * (b.value - a.value);
+        case Easing::Linear:
+            break;
     }
     return a.value + s * (b.value - a.value);
 }
@@ -48,7 +54,8 @@ void Lane::set(int frame, double value, Easing easing) {
 }
 
 bool Lane::remove(int frame) {
-    auto it = std::find_if(keys.begin(), keys.end(), [&](const Keyframe& k) { return k.frame == frame; });
+    auto it =
+        std::find_if(keys.begin(), keys.end(), [&](const Keyframe& k) { return k.frame == frame; });
     if (it == keys.end()) return false;
     keys.erase(it);
     return true;
@@ -81,9 +88,9 @@ PreviewLens FocusTrack::lens_at(int frame, const DepthModel* depth) const {
 namespace {
 
 const std::pair<const char*, Lane FocusTrack::*> kLanes[] = {
-    {"focus", &FocusTrack::focus},          {"aperture", &FocusTrack::aperture},
-    {"blades", &FocusTrack::blades},        {"rotation_deg", &FocusTrack::rotation_deg},
-    {"beta", &FocusTrack::beta},            {"highlight_gain", &FocusTrack::highlight_gain}};
+    {"focus", &FocusTrack::focus},   {"aperture", &FocusTrack::aperture},
+    {"blades", &FocusTrack::blades}, {"rotation_deg", &FocusTrack::rotation_deg},
+    {"beta", &FocusTrack::beta},     {"highlight_gain", &FocusTrack::highlight_gain}};
 
 }  // namespace
 
@@ -92,11 +99,15 @@ json FocusTrack::to_json() const {
     for (const auto& [name, lane] : kLanes) {
         json keys = json::array();
         for (const Keyframe& k : (this->*lane).keys)
-            keys.push_back({{"frame", k.frame}, {"value", k.value}, {"easing", easing_name(k.easing)}});
+            keys.push_back(
+                {{"frame", k.frame}, {"value", k.value}, {"easing", easing_name(k.easing)}});
         j[name] = keys;
     }
-    j["track"] = track ? json{{"layer", track->layer}, {"u", track->u}, {"v", track->v},
-                              {"from_frame", track->from_frame}, {"to_frame", track->to_frame}}
+    j["track"] = track ? json{{"layer", track->layer},
+                              {"u", track->u},
+                              {"v", track->v},
+                              {"from_frame", track->from_frame},
+                              {"to_frame", track->to_frame}}
                        : json(nullptr);
     return j;
 }
@@ -107,7 +118,8 @@ FocusTrack FocusTrack::from_json(const json& j, const std::string& label) {
     };
     auto number = [&](const json& o, const char* key, const std::string& field) {
         if (!o.contains(key)) bad(field, "missing");
-        if (!o[key].is_number() || !std::isfinite(o[key].get<double>())) bad(field, "must be a finite number");
+        if (!o[key].is_number() || !std::isfinite(o[key].get<double>()))
+            bad(field, "must be a finite number");
         return o[key].get<double>();
     };
     auto integer = [&](const json& o, const char* key, const std::string& field) {
@@ -140,12 +152,17 @@ FocusTrack FocusTrack::from_json(const json& j, const std::string& label) {
             const std::string e = k.contains("easing") && k["easing"].is_string()
                                       ? k["easing"].get<std::string>()
                                       : (k.contains("easing") ? "?" : "linear");
-            if (e == "linear") key.easing = Easing::Linear;
-            else if (e == "ease_in_out") key.easing = Easing::EaseInOut;
-            else if (e == "hold") key.easing = Easing::Hold;
-            else bad(f + ".easing", "unknown easing (use linear, ease_in_out or hold)");
+            if (e == "linear")
+                key.easing = Easing::Linear;
+            else if (e == "ease_in_out")
+                key.easing = Easing::EaseInOut;
+            else if (e == "hold")
+                key.easing = Easing::Hold;
+            else
+                bad(f + ".easing", "unknown easing (use linear, ease_in_out or hold)");
             Lane& l = ft.*lane;
-            if (std::any_of(l.keys.begin(), l.keys.end(), [&](const Keyframe& o) { return o.frame == key.frame; }))
+            if (std::any_of(l.keys.begin(), l.keys.end(),
+                            [&](const Keyframe& o) { return o.frame == key.frame; }))
                 bad(f + ".frame", "two keys at frame " + std::to_string(key.frame));
             l.set(key.frame, key.value, key.easing);
         }
@@ -155,10 +172,12 @@ FocusTrack FocusTrack::from_json(const json& j, const std::string& label) {
         if (!t.is_object()) bad("track", "must be an object or null");
         FocusTarget tg;
         tg.layer = integer(t, "layer", "track.layer");
-        if (tg.layer != 0 && tg.layer != 1) bad("track.layer", "must be 0 (background) or 1 (foreground)");
+        if (tg.layer != 0 && tg.layer != 1)
+            bad("track.layer", "must be 0 (background) or 1 (foreground)");
         tg.u = float(number(t, "u", "track.u"));
         tg.v = float(number(t, "v", "track.v"));
-        if (std::fabs(tg.u) > 1 || std::fabs(tg.v) > 1) bad("track.u/v", "atlas coordinates must be in [-1, 1]");
+        if (std::fabs(tg.u) > 1 || std::fabs(tg.v) > 1)
+            bad("track.u/v", "atlas coordinates must be in [-1, 1]");
         tg.from_frame = integer(t, "from_frame", "track.from_frame");
         tg.to_frame = integer(t, "to_frame", "track.to_frame");
         if (tg.to_frame < tg.from_frame) bad("track.to_frame", "must be >= from_frame");

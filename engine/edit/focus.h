@@ -29,7 +29,7 @@ struct Keyframe {
 // Before the first key and after the last the nearest key's value holds.
 struct Lane {
     std::vector<Keyframe> keys;
-    double eval(double frame, double fallback) const;  // fallback: no keys
+    double eval(double frame, double fallback) const;                   // fallback: no keys
     void set(int frame, double value, Easing easing = Easing::Linear);  // replaces that frame's
     bool remove(int frame);  // false if no key at `frame`
     bool empty() const { return keys.empty(); }
@@ -45,11 +45,11 @@ struct FocusTarget {
 
 struct FocusTrack {
     static constexpr int kVersion = 1;
-    Lane focus;           // inverse depth in focus (DepthModel units)
-    Lane aperture;        // px of blur per unit of inverse depth (1: as shot, 0: sharp)
-    Lane blades;          // 0: circle, 3..64: polygon (rounded)
+    Lane focus;     // inverse depth in focus (DepthModel units)
+    Lane aperture;  // px of blur per unit of inverse depth (1: as shot, 0: sharp)
+    Lane blades;    // 0: circle, 3..64: polygon (rounded)
     Lane rotation_deg;
-    Lane beta;            // disk kernel rim (paper eq. 2)
+    Lane beta;  // disk kernel rim (paper eq. 2)
     Lane highlight_gain;
     double highlight_threshold = 1.0;
     std::optional<FocusTarget> track;

@@ -11,9 +11,12 @@
 
 namespace refocus {
 
-FrameMaps frame_maps(FitEngine& engine, int t) { return frame_maps(engine, t, {}, {}); }
+FrameMaps frame_maps(FitEngine& engine, int t) {
+    return frame_maps(engine, t, {}, {});
+}
 
-FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta, const torch::Tensor& fg_delta) {
+FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta,
+                     const torch::Tensor& fg_delta) {
     torch::NoGradGuard no_grad;
     Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
     const torch::Tensor model_sharp = L.sharp;
@@ -23,7 +26,9 @@ FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta, co
 }
 
 FrameMaps frame_maps(const Layers& L) {
-    auto img = [](const torch::Tensor& x) { return x.defined() ? tensor_to_image(x[0].contiguous()) : Image(); };
+    auto img = [](const torch::Tensor& x) {
+        return x.defined() ? tensor_to_image(x[0].contiguous()) : Image();
+    };
     auto uv = [](const torch::Tensor& x) {  // [1,H,W,2] → 2-channel image
         return x.defined() ? tensor_to_image(x[0].permute({2, 0, 1}).contiguous()) : Image();
     };
@@ -42,14 +47,16 @@ FrameMaps frame_maps(const Layers& L) {
 Image render_refocused(const FrameMaps& m, const DepthModel& depth, int t, const PreviewLens& lens,
                        int threads) {
     if (m.uv_bg.empty())
-        throw Error("refocus: frame " + std::to_string(t) + " has no UV map (the perframe preset has no atlas)");
+        throw Error("refocus: frame " + std::to_string(t) +
+                    " has no UV map (the perframe preset has no atlas)");
     PreviewLayers layers;
     layers.composite = m.sharp;
     layers.background = m.bg;
     const bool two = !m.fg.empty();
     layers.foreground = two ? m.fg : Image(m.bg.width, m.bg.height, 3);
     layers.alpha = two ? m.alpha : Image(m.bg.width, m.bg.height, 1);
-    return render_dof(layers, depth.frame_depth(t, m.uv_bg, two ? m.uv_fg : Image()), lens, threads);
+    return render_dof(layers, depth.frame_depth(t, m.uv_bg, two ? m.uv_fg : Image()), lens,
+                      threads);
 }
 
 }  // namespace refocus

@@ -21,7 +21,8 @@ struct FrameMaps {
 FrameMaps frame_maps(FitEngine& engine, int t);
 // The same with atlas edits (AtlasEditor::delta, [1,3,Ha,Wa]; undefined: none) drawn in, as the
 // export draws them (edit/atlas_edit.h apply_edits, then the fallback to the shot).
-FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta, const torch::Tensor& fg_delta);
+FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta,
+                     const torch::Tensor& fg_delta);
 // The first frame of a rendered batch (e.g. after edit/atlas_edit.h apply_edits).
 FrameMaps frame_maps(const Layers& layers);
 

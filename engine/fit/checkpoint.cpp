@@ -19,7 +19,9 @@ using nlohmann::json;
 constexpr int kCheckpointVersion = 2;
 
 const char* kernel_name(const LensBlurParams& p) {
-    return p.kernel == BlurKernel::Pillbox ? "pillbox" : p.kernel == BlurKernel::Disk ? "disk" : "gaussian";
+    return p.kernel == BlurKernel::Pillbox ? "pillbox"
+           : p.kernel == BlurKernel::Disk  ? "disk"
+                                           : "gaussian";
 }
 
 // Version 1 left out what had its first meaning when a field was added: no "kernel" is the
@@ -45,15 +47,17 @@ static_assert(sizeof kMigrations / sizeof kMigrations[0] == kCheckpointVersion -
               "one migration step per older checkpoint version");
 
 void migrate_checkpoint(json& j, const fs::path& file) {
-    if (!j.is_object()) throw Error(file_error(file.string(), "corrupt checkpoint: not a JSON object"));
+    if (!j.is_object())
+        throw Error(file_error(file.string(), "corrupt checkpoint: not a JSON object"));
     const json& v = j.contains("version") ? j["version"] : json(1);
     if (!v.is_number_integer() || v.get<int64_t>() < 1)
         throw Error(file_error(file.string(), "corrupt checkpoint: 'version' is " + v.dump()));
     if (v.get<int64_t>() > kCheckpointVersion)
-        throw Error(file_error(file.string(), "checkpoint from a newer Refocus (version " + v.dump() +
-                                                  ", this build reads up to " +
+        throw Error(file_error(file.string(), "checkpoint from a newer Refocus (version " +
+                                                  v.dump() + ", this build reads up to " +
                                                   std::to_string(kCheckpointVersion) + ")"));
-    for (int64_t from = v.get<int64_t>(); from < kCheckpointVersion; ++from) kMigrations[from - 1](j);
+    for (int64_t from = v.get<int64_t>(); from < kCheckpointVersion; ++from)
+        kMigrations[from - 1](j);
 }
 
 // The archive's name for `name` (a migrated checkpoint may hold it under an older name).
@@ -65,7 +69,9 @@ std::string archive_name(const json& j, const std::string& name) {
 
 }  // namespace
 
-bool FitEngine::has_checkpoint(const fs::path& dir) { return fs::exists(dir / "checkpoint.json"); }
+bool FitEngine::has_checkpoint(const fs::path& dir) {
+    return fs::exists(dir / "checkpoint.json");
+}
 
 void FitEngine::save_checkpoint(const fs::path& dir) {
     fs::create_directories(dir);
@@ -87,7 +93,8 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
         } catch (const std::exception& e) {
             std::error_code ec;
             fs::remove(tmp, ec);
-            throw Error(file_error(pt.string(), std::string("cannot write checkpoint: ") + e.what()));
+            throw Error(
+                file_error(pt.string(), std::string("cannot write checkpoint: ") + e.what()));
         }
         commit_temp(tmp, pt);
     }
@@ -95,24 +102,26 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
     rng << m_rng;
     FitSnapshot last = snapshot();  // the last step's figures, shown again after a reopen
     json j = {{"version", kCheckpointVersion},
-                        {"loss", last.loss},
-                        {"reblur_psnr", last.reblur_psnr},
-                        {"terms", last.terms},
-                        {"preset", m_opts.preset},
-                        {"frames", m_data->frames},
-                        {"height", m_data->height},
-                        {"width", m_data->width},
-                        {"two_layers", m_data->has_subject},
-                        {"subject_track", m_data->legacy_subject_track ? "centroid" : m_data->legacy_track_gaps ? "flow" : "flow-v2"},
-                        {"kernel", kernel_name(m_data->blur)},
-                        {"atlas_scale", m_data->atlas_scale},
-                        {"step", m_step},
-                        {"elapsed_s", m_elapsed},
-                        {"seed", m_opts.seed},
-                        {"rng", rng.str()},
-                        {"perm", m_perm},
-                        {"perm_pos", m_perm_pos},
-                        {"tensors", pt_name}};
+              {"loss", last.loss},
+              {"reblur_psnr", last.reblur_psnr},
+              {"terms", last.terms},
+              {"preset", m_opts.preset},
+              {"frames", m_data->frames},
+              {"height", m_data->height},
+              {"width", m_data->width},
+              {"two_layers", m_data->has_subject},
+              {"subject_track", m_data->legacy_subject_track ? "centroid"
+                                : m_data->legacy_track_gaps  ? "flow"
+                                                             : "flow-v2"},
+              {"kernel", kernel_name(m_data->blur)},
+              {"atlas_scale", m_data->atlas_scale},
+              {"step", m_step},
+              {"elapsed_s", m_elapsed},
+              {"seed", m_opts.seed},
+              {"rng", rng.str()},
+              {"perm", m_perm},
+              {"perm_pos", m_perm_pos},
+              {"tensors", pt_name}};
     write_file_atomic(dir / "checkpoint.json", j.dump(1));
     // checkpoint.json names only this step's tensor file: the others are removed.
     for (const auto& e : fs::directory_iterator(dir)) {
@@ -170,19 +179,22 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
         const bool legacy_gaps = m_data->has_subject && kind != "flow-v2";
         const double scale = j.value("atlas_scale", 1.0);
         if (!(scale >= 1 && scale <= 4))
-            throw Error(file_error(jf.string(), "checkpoint atlas_scale " + j["atlas_scale"].dump() + " is out of range"));
+            throw Error(file_error(jf.string(), "checkpoint atlas_scale " +
+                                                    j["atlas_scale"].dump() + " is out of range"));
         if (legacy != m_data->legacy_subject_track || legacy_gaps != m_data->legacy_track_gaps ||
             scale != m_data->atlas_scale) {
             m_data->atlas_scale = scale;
             m_data->legacy_subject_track = legacy;
             m_data->legacy_track_gaps = legacy_gaps;
-            if (legacy_gaps && m_data->mask_as_stored.defined()) m_data->mask = m_data->mask_as_stored;
+            if (legacy_gaps && m_data->mask_as_stored.defined())
+                m_data->mask = m_data->mask_as_stored;
             build_model();
         }
         std::map<std::string, torch::Tensor> s;
         for (auto& [name, t] : m_model->state()) {
             torch::Tensor v;
-            if (ar.try_read(archive_name(j, "model/" + name), v)) s[name] = v;  // the model says what it cannot lack
+            if (ar.try_read(archive_name(j, "model/" + name), v))
+                s[name] = v;  // the model says what it cannot lack
         }
         if (j.contains("perframe_done_v1")) {  // version 1's perframe frames done
             const auto done = j["perframe_done_v1"].get<std::vector<bool>>();
@@ -195,9 +207,10 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
         } catch (const Error& e) {
             throw Error(file_error(pt.string(), e.what()));
         }
-        make_optimizer();  // load_state may have given the model new tensors (a stored geometry)
+        make_optimizer();     // load_state may have given the model new tensors (a stored geometry)
         torch::Tensor resid;  // a checkpoint without it: the running residual starts again
-        if (ar.try_read("robust_resid", resid) && resid.sizes().equals(m_resid.sizes())) m_resid.copy_(resid);
+        if (ar.try_read("robust_resid", resid) && resid.sizes().equals(m_resid.sizes()))
+            m_resid.copy_(resid);
         if (m_optim) {
             torch::serialize::InputArchive opt;
             ar.read("optimizer", opt);

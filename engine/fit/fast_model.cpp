@@ -37,7 +37,8 @@ torch::Tensor pad_edges(const torch::Tensor& x, int64_t pad) {
 }
 
 torch::Tensor pixel_grid(int64_t H, int64_t W, int64_t pad) {
-    auto ys = torch::arange(-pad, H + pad, torch::kFloat32), xs = torch::arange(-pad, W + pad, torch::kFloat32);
+    auto ys = torch::arange(-pad, H + pad, torch::kFloat32),
+         xs = torch::arange(-pad, W + pad, torch::kFloat32);
     auto grid = torch::meshgrid({ys, xs}, "ij");
     return torch::stack({grid[1].flatten(), grid[0].flatten(), torch::ones({grid[0].numel()})}, 1);
 }
@@ -53,13 +54,14 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
 
     // Background atlas: the bounding box of every (padded) frame mapped into the reference frame.
     auto to_ref = d.to_ref.to(torch::kFloat64).contiguous();
-    const AtlasBox box = mapped_frames_box(torch::matmul(to_ref, translation(-P, -P)), H + 2 * P, W + 2 * P);
+    const AtlasBox box =
+        mapped_frames_box(torch::matmul(to_ref, translation(-P, -P)), H + 2 * P, W + 2 * P);
     m_bg.origin_x = box.origin_x;
     m_bg.origin_y = box.origin_y;
     m_bg.width = box.width;
     m_bg.height = box.height;
-    m_bg.to_atlas = torch::matmul(translation(-m_bg.origin_x, -m_bg.origin_y), to_ref)
-                        .to(torch::kFloat32);
+    m_bg.to_atlas =
+        torch::matmul(translation(-m_bg.origin_x, -m_bg.origin_y), to_ref).to(torch::kFloat32);
     m_bg.learn_warp = !d.static_camera;
     rescale(m_bg, opts.atlas_scale);
     m_bg.warp = torch::zeros({T, 2, gh, gw});
@@ -80,9 +82,10 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         m_fg.height = fbox.height;
         std::vector<torch::Tensor> mats;
         for (int64_t t = 0; t < T; ++t)
-            mats.push_back(sc[t] == 1.0 ? translation(-vx[t] - m_fg.origin_x, -vy[t] - m_fg.origin_y)
-                                        : torch::matmul(translation(-m_fg.origin_x, -m_fg.origin_y),
-                                                        subject_to_track(vx[t], vy[t], sc[t])));
+            mats.push_back(sc[t] == 1.0
+                               ? translation(-vx[t] - m_fg.origin_x, -vy[t] - m_fg.origin_y)
+                               : torch::matmul(translation(-m_fg.origin_x, -m_fg.origin_y),
+                                               subject_to_track(vx[t], vy[t], sc[t])));
         m_fg.to_atlas = torch::stack(mats).to(torch::kFloat32);
         m_fg.learn_warp = true;
         rescale(m_fg, opts.atlas_scale);
@@ -94,10 +97,12 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         refine_alignment(m_fg, fg_weight, d.mask, true, d.legacy_subject_track ? 4.0 : 10.0);
         if (std::any_of(sc.begin(), sc.end(), [](double v) { return v != 1.0; })) {
             char line[200];
-            std::snprintf(line, sizeof line,
-                          "fit (fast): the subject's size changes along the clip (%.2f-%.2f of its largest, from "
-                          "its flow): the atlas is prefiltered for each frame where the subject is smaller",
-                          *std::min_element(sc.begin(), sc.end()), *std::max_element(sc.begin(), sc.end()));
+            std::snprintf(
+                line, sizeof line,
+                "fit (fast): the subject's size changes along the clip (%.2f-%.2f of its largest, "
+                "from "
+                "its flow): the atlas is prefiltered for each frame where the subject is smaller",
+                *std::min_element(sc.begin(), sc.end()), *std::max_element(sc.begin(), sc.end()));
             notes.push_back(line);
         }
         init_levels(m_fg, fuse(m_fg, fg_weight));
@@ -107,8 +112,10 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         // subject sharpest: a blurred subject's automatic mask loses its head and feet (synth
         // rack frames 0-15), a sharp one's does not.
         const double hs = 0.5;
-        auto to_half = torch::tensor({hs, 0.0, 0.5 * hs - 0.5, 0.0, hs, 0.5 * hs - 0.5, 0.0, 0.0, 1.0},
-                                     torch::kFloat64).view({3, 3});
+        auto to_half =
+            torch::tensor({hs, 0.0, 0.5 * hs - 0.5, 0.0, hs, 0.5 * hs - 0.5, 0.0, 0.0, 1.0},
+                          torch::kFloat64)
+                .view({3, 3});
         m_alpha_h = std::max<int64_t>(1, (m_fg.height + 1) / 2);
         m_alpha_w = std::max<int64_t>(1, (m_fg.width + 1) / 2);
         // How sharp the subject is in each frame is the subject's own radius (d.radius_fg where
@@ -116,8 +123,9 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         // surface's radius there is the wall's, sharp when focus is on the wall, and such a
         // frame's "no head" would be trusted most.
         const auto subject_r = d.layer_radius(true).unsqueeze(1);
-        auto fused_mask = fuse_frames(torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
-                                      m_alpha_h, m_alpha_w, d.mask, (subject_r + 0.5).pow(-4.0));
+        auto fused_mask = fuse_frames(
+            torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
+            m_alpha_h, m_alpha_w, d.mask, (subject_r + 0.5).pow(-4.0));
         m_alpha_atlas = torch::logit(fused_mask.unsqueeze(0).clamp(0.01, 0.99));
         m_alpha_logit = torch::zeros({T, 1, (H + 3) / 4, (W + 3) / 4});
         // The masks are trusted as much as the subject is sharp there (1 at r = 0, 0.2 at 4 px,
@@ -132,22 +140,24 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     // fused atlas finds; on a locked-off camera it finds ~0.
     if (!d.static_camera || m_opts.static_align) {
         const auto before = m_bg.to_atlas.clone();
-        refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), false,
-                         d.static_camera ? 2.0 : 4.0, d.static_camera);
+        refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness),
+                         false, d.static_camera ? 2.0 : 4.0, d.static_camera);
         // Corrections under 0.3 px are ECC's noise on a locked-off camera and are dropped: the
         // identity keeps its frames from flickering (docs/method.md, What is skipped when).
         if (d.static_camera &&
-            (m_bg.to_atlas - before).narrow(1, 0, 2).narrow(2, 2, 1).abs().max().item<double>() < 0.3 * m_bg.scale)
+            (m_bg.to_atlas - before).narrow(1, 0, 2).narrow(2, 2, 1).abs().max().item<double>() <
+                0.3 * m_bg.scale)
             m_bg.to_atlas = before;
     }
     init_levels(m_bg, fuse(m_bg, bg_weight));
     if (m_opts.deblur_path) {
         auto line = make_deblur_path(m_bg, d.layer_radius(false), bg_weight,
-                                     m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness), "background");
+                                     m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness),
+                                     "background");
         if (!line.empty()) notes.push_back(line);
         if (m_two_layers) {
-            line = make_deblur_path(m_fg, d.layer_radius(true), sharpness * d.mask.clamp_min(1e-3), d.mask,
-                                    "foreground");
+            line = make_deblur_path(m_fg, d.layer_radius(true), sharpness * d.mask.clamp_min(1e-3),
+                                    d.mask, "foreground");
             if (!line.empty()) notes.push_back(line);
         }
     }
@@ -155,7 +165,8 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
 }
 
 int FastModel::preferred_batch() const {
-    return m_bg.deblur.defined() || m_fg.deblur.defined() ? m_opts.deblur_batch : FitModel::preferred_batch();
+    return m_bg.deblur.defined() || m_fg.deblur.defined() ? m_opts.deblur_batch
+                                                          : FitModel::preferred_batch();
 }
 
 std::string FastModel::preferred_batch_reason() const {
@@ -171,14 +182,15 @@ void FastModel::update_tv_weights() {
     m_bg.tv_weight = m_fg.tv_weight = torch::Tensor();
     if (int(m_opts.tv_radius_layers) & 1) {
         auto views = m_two_layers ? (1.0 - d.mask).clamp_min(1e-3) : torch::ones_like(sharpness);
-        m_bg.tv_weight = tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1), sharpness * views, views,
-                                       m_opts.tv_radius_fade);
+        m_bg.tv_weight = tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1), sharpness * views,
+                                       views, m_opts.tv_radius_fade);
     }
     if (m_two_layers && (int(m_opts.tv_radius_layers) & 2)) {
         auto views = d.mask.clamp_min(1e-3);
         // The subject's layer keeps the weight at any radius (no fade): a subject blurred in
         // every frame (synth pan's, 7 px) gains from it (docs/method.md, Model).
-        m_fg.tv_weight = tv_weight_map(m_fg, d.layer_radius(true).unsqueeze(1), sharpness * views, views, 0.0);
+        m_fg.tv_weight =
+            tv_weight_map(m_fg, d.layer_radius(true).unsqueeze(1), sharpness * views, views, 0.0);
     }
 }
 
@@ -191,8 +203,8 @@ torch::Tensor FastModel::tv_weight_map(const Atlas& a, const torch::Tensor& radi
     if (!(cap > 1)) return torch::Tensor();
     auto sharp = fuse(a, weight, radius);  // [1,Ha,Wa], ~ the smallest radius seen
     auto mean = fuse(a, views, radius);    // each view alike
-    auto f = tv_radius_factor(sharp, mean, fuse(a, views, radius * radius), m_opts.tv_radius_gain, cap,
-                              m_opts.tv_radius_spread, fade);
+    auto f = tv_radius_factor(sharp, mean, fuse(a, views, radius * radius), m_opts.tv_radius_gain,
+                              cap, m_opts.tv_radius_spread, fade);
     return f.unsqueeze(0);
 }
 
@@ -201,7 +213,9 @@ void FastModel::rescale(Atlas& a, double s) {
     if (s == 1) return;
     a.width = int64_t(std::ceil(a.width * s));
     a.height = int64_t(std::ceil(a.height * s));
-    auto S = torch::tensor({s, 0.0, 0.5 * (s - 1), 0.0, s, 0.5 * (s - 1), 0.0, 0.0, 1.0}, torch::kFloat64).view({3, 3});
+    auto S = torch::tensor({s, 0.0, 0.5 * (s - 1), 0.0, s, 0.5 * (s - 1), 0.0, 0.0, 1.0},
+                           torch::kFloat64)
+                 .view({3, 3});
     a.to_atlas = torch::matmul(S, a.to_atlas.to(torch::kFloat64)).to(torch::kFloat32);
     a.scale = s;
 }
@@ -222,7 +236,8 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             auto p = torch::matmul(a.to_atlas[t], m_pixels.t());
             auto px = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, H, W, 2});
             auto render = sample_bicubic(fused, to_grid(a, px))[0];
-            auto blurred = lens_blur(render.contiguous(), m_data.radius[t].contiguous(), m_data.blur);
+            auto blurred =
+                lens_blur(render.contiguous(), m_data.radius[t].contiguous(), m_data.blur);
             cv::Mat tmpl = grey(m_data.input[t]), moving = grey(blurred);
             auto rmask = (region[t][0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
             cv::Mat mask(int(H), int(W), CV_8U, rmask.data_ptr<uint8_t>());
@@ -235,9 +250,10 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             cv::Mat warp = cv::Mat::eye(2, 3, CV_32F);
             bool ok = true;
             try {
-                cv::findTransformECC(tmpl, moving, warp, cv::MOTION_TRANSLATION,
-                                     cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 60, 1e-5),
-                                     mask, 5);
+                cv::findTransformECC(
+                    tmpl, moving, warp, cv::MOTION_TRANSLATION,
+                    cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 60, 1e-5),
+                    mask, 5);
             } catch (const cv::Exception&) {
                 ok = false;  // no convergence: keep the mapping
             }
@@ -250,8 +266,9 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             for (double cy : {0.0, double(H - 1)})
                 for (double cx : {0.0, double(W - 1)}) {
                     auto q = torch::matmul(w, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
-                    worst = std::max(worst, std::hypot(q[0].item<double>() / q[2].item<double>() - cx,
-                                                       q[1].item<double>() / q[2].item<double>() - cy));
+                    worst =
+                        std::max(worst, std::hypot(q[0].item<double>() / q[2].item<double>() - cx,
+                                                   q[1].item<double>() / q[2].item<double>() - cy));
                 }
             if (debug_enabled("align"))
                 std::fprintf(stderr, "align round %d frame %lld: %s, corner shift %.2f px\n", round,
@@ -263,32 +280,35 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             double rho0 = 0, rho1 = 0;
             if (ok && static_camera) {
                 cv::Mat warped;
-                cv::warpAffine(moving, warped, warp, moving.size(), cv::INTER_LINEAR + cv::WARP_INVERSE_MAP,
-                               cv::BORDER_REPLICATE);
+                cv::warpAffine(moving, warped, warp, moving.size(),
+                               cv::INTER_LINEAR + cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
                 rho0 = cv::computeECC(tmpl, moving, mask);
                 rho1 = cv::computeECC(tmpl, warped, mask);
                 ok = rho1 > 0.9 && rho1 > rho0 + 0.002;
             }
             if (debug_enabled("align") && static_camera)
-                std::fprintf(stderr, "  static frame %lld: ECC coefficient %.4f -> %.4f\n", (long long)t, rho0, rho1);
+                std::fprintf(stderr, "  static frame %lld: ECC coefficient %.4f -> %.4f\n",
+                             (long long)t, rho0, rho1);
             mats.push_back(ok && worst < max_shift ? torch::matmul(m, w) : m);
         }
         a.to_atlas = torch::stack(mats).to(torch::kFloat32);
     }
 }
 
-torch::Tensor FastModel::map_coords(const Atlas& a, const std::vector<int64_t>& frames, int64_t pad) const {
+torch::Tensor FastModel::map_coords(const Atlas& a, const std::vector<int64_t>& frames,
+                                    int64_t pad) const {
     const int64_t H = m_data.height, W = m_data.width, B = frames.size();
-    if (pad != 0 && pad != m_opts.pad) throw Error("fast model: padding " + std::to_string(pad) + " px unsupported");
+    if (pad != 0 && pad != m_opts.pad)
+        throw Error("fast model: padding " + std::to_string(pad) + " px unsupported");
     const auto& pixels = pad ? m_pixels_pad : m_pixels;
     auto idx = torch::tensor(frames, torch::kLong);
-    auto m = a.to_atlas.index_select(0, idx);                  // [B,3,3]
-    auto p = torch::matmul(m, pixels.t());                     // [B,3,HW]
-    auto xy = p.narrow(1, 0, 2) / p.narrow(1, 2, 1);           // [B,2,HW]
+    auto m = a.to_atlas.index_select(0, idx);         // [B,3,3]
+    auto p = torch::matmul(m, pixels.t());            // [B,3,HW]
+    auto xy = p.narrow(1, 0, 2) / p.narrow(1, 2, 1);  // [B,2,HW]
     auto px = xy.view({B, 2, H + 2 * pad, W + 2 * pad});
     if (a.learn_warp || a.warp.requires_grad())  // the residual warp is held constant past the edge
         px = px + a.scale * pad_edges(upsample(a.warp.index_select(0, idx), H, W, true), pad);
-    return px.permute({0, 2, 3, 1});                           // [B,H,W,2]
+    return px.permute({0, 2, 3, 1});  // [B,H,W,2]
 }
 
 torch::Tensor FastModel::to_grid(const Atlas& a, const torch::Tensor& px) const {
@@ -306,13 +326,15 @@ torch::Tensor FastModel::compose(const Atlas& a) const {
     if (a.deblur.defined()) {
         const int64_t h = a.deblur_kernel.size(2) / 2;
         auto x = F::pad(a.deblur, F::PadFuncOptions({h, h, h, h}).mode(torch::kReplicate));
-        sum = sum + upsample(F::conv2d(x, a.deblur_kernel, F::Conv2dFuncOptions().groups(3)), a.height, a.width);
+        sum = sum + upsample(F::conv2d(x, a.deblur_kernel, F::Conv2dFuncOptions().groups(3)),
+                             a.height, a.width);
     }
     return sum;
 }
 
-std::string FastModel::make_deblur_path(Atlas& a, const torch::Tensor& radius, const torch::Tensor& weight,
-                                        const torch::Tensor& views, const char* name) {
+std::string FastModel::make_deblur_path(Atlas& a, const torch::Tensor& radius,
+                                        const torch::Tensor& weight, const torch::Tensor& views,
+                                        const char* name) {
     // Only for a layer that no frame saw in focus: the median, over the texels that the layer
     // covers in most of their views, of the radius each was seen at sharpest (fused as the
     // texels are). Where focus reached a layer its sharp views carry the detail already, and
@@ -320,10 +342,13 @@ std::string FastModel::make_deblur_path(Atlas& a, const torch::Tensor& radius, c
     torch::NoGradGuard no_grad;
     const auto cover = fuse(a, torch::ones_like(views), views) > 0.5;
     if (!cover.any().item<bool>()) return {};
-    const double r = fuse(a, weight, radius.unsqueeze(1)).masked_select(cover).median().item<double>();
+    const double r =
+        fuse(a, weight, radius.unsqueeze(1)).masked_select(cover).median().item<double>();
     char line[200];
     if (!(r >= m_opts.deblur_min_radius)) {
-        std::snprintf(line, sizeof line, "fit (fast): %s atlas: no deblurring path (seen in focus: median sharpest radius %.1f px < %.1f)",
+        std::snprintf(line, sizeof line,
+                      "fit (fast): %s atlas: no deblurring path (seen in focus: median sharpest "
+                      "radius %.1f px < %.1f)",
                       name, r, m_opts.deblur_min_radius);
         return line;
     }
@@ -340,13 +365,17 @@ std::string FastModel::make_deblur_path(Atlas& a, const torch::Tensor& radius, c
     ker = (ker - ker.mean()).to(torch::kFloat32);  // the cut keeps no DC
     a.deblur_kernel = ker.view({1, 1, k, k}).expand({3, 1, k, k}).contiguous();
     const int64_t s = std::max<int64_t>(1, std::lround(a.scale));
-    a.deblur = torch::zeros({1, 3, (a.height + s - 1) / s, (a.width + s - 1) / s}).set_requires_grad(true);
-    std::snprintf(line, sizeof line, "fit (fast): %s atlas: deblurring path (never seen in focus: median sharpest radius %.1f px; gain up to %.0fx)",
+    a.deblur =
+        torch::zeros({1, 3, (a.height + s - 1) / s, (a.width + s - 1) / s}).set_requires_grad(true);
+    std::snprintf(line, sizeof line,
+                  "fit (fast): %s atlas: deblurring path (never seen in focus: median sharpest "
+                  "radius %.1f px; gain up to %.0fx)",
                   name, r, Q.max().item<double>());
     return line;
 }
 
-torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight, const torch::Tensor& what) const {
+torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
+                              const torch::Tensor& what) const {
     // The margin starts as the frames' edges replicated outward, trusted 1000x less than what a
     // frame saw (a moving camera sees another frame's margin).
     const int64_t P = m_opts.pad;
@@ -363,7 +392,8 @@ void FastModel::init_levels(Atlas& a, const torch::Tensor& fused) {
     a.levels.clear();
     for (int l = 0; l < m_opts.levels; ++l) {
         const int shift = m_opts.levels - 1 - l;
-        int64_t h = std::max<int64_t>(1, a.height >> shift), w = std::max<int64_t>(1, a.width >> shift);
+        int64_t h = std::max<int64_t>(1, a.height >> shift),
+                w = std::max<int64_t>(1, a.width >> shift);
         a.levels.push_back(torch::zeros({1, 3, h, w}));
     }
     a.levels.back() = fused.unsqueeze(0).clone();
@@ -388,7 +418,8 @@ std::vector<ParamGroup> FastModel::param_groups() {
     if (!warp.params.empty()) g.push_back(warp);
     if (m_two_layers) {
         g.push_back(ParamGroup{{m_alpha_logit.set_requires_grad(true)}, m_opts.lr_alpha});
-        g.push_back(ParamGroup{{m_alpha_atlas.set_requires_grad(true)}, m_opts.lr_alpha * m_opts.alpha_shared_lr});
+        g.push_back(ParamGroup{{m_alpha_atlas.set_requires_grad(true)},
+                               m_opts.lr_alpha * m_opts.alpha_shared_lr});
     }
     return g;
 }
@@ -410,11 +441,14 @@ torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s) {
                        : torch::exp(-x * x / (2 * var));
     k = k / k.sum();
     auto img = F::pad(image, F::PadFuncOptions({r, r, r, r}).mode(torch::kReplicate));
-    img = F::conv2d(img, k.view({1, 1, 1, -1}).expand({C, 1, 1, 2 * r + 1}), F::Conv2dFuncOptions().groups(C));
-    return F::conv2d(img, k.view({1, 1, -1, 1}).expand({C, 1, 2 * r + 1, 1}), F::Conv2dFuncOptions().groups(C));
+    img = F::conv2d(img, k.view({1, 1, 1, -1}).expand({C, 1, 1, 2 * r + 1}),
+                    F::Conv2dFuncOptions().groups(C));
+    return F::conv2d(img, k.view({1, 1, -1, 1}).expand({C, 1, 2 * r + 1, 1}),
+                     F::Conv2dFuncOptions().groups(C));
 }
 
-torch::Tensor FastModel::minified(const torch::Tensor& fg, const std::vector<int64_t>& frames) const {
+torch::Tensor FastModel::minified(const torch::Tensor& fg,
+                                  const std::vector<int64_t>& frames) const {
     const int64_t B = frames.size();
     const auto img = fg.view({1, 3, m_fg.height, m_fg.width});
     std::vector<torch::Tensor> per;
@@ -453,8 +487,12 @@ Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad)
     // The shared matte through the foreground mapping (its grid [-1,1] spans the atlas, which
     // the half-resolution matte spans too) plus the frame's residual.
     auto shared = F::grid_sample(m_alpha_atlas.expand({B, 1, m_alpha_h, m_alpha_w}), out.uv_fg,
-                                 F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kBorder).align_corners(false));
-    out.alpha = torch::sigmoid(shared + pad_edges(upsample(m_alpha_logit.index_select(0, idx), H, W), pad));
+                                 F::GridSampleFuncOptions()
+                                     .mode(torch::kBilinear)
+                                     .padding_mode(torch::kBorder)
+                                     .align_corners(false));
+    out.alpha =
+        torch::sigmoid(shared + pad_edges(upsample(m_alpha_logit.index_select(0, idx), H, W), pad));
     out.sharp = out.alpha * out.fg + (1.0 - out.alpha) * out.bg;  // paper eq. 1
     return out;
 }
@@ -466,7 +504,8 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     auto tv_factor = [&](const Atlas& a) { return a.deblur.defined() ? m_opts.deblur_tv : 1.0; };
     auto tv = tv_factor(m_bg) * tv_l1(bg, m_bg.tv_weight);
     if (m_two_layers)
-        tv = tv + tv_factor(m_fg) * tv_l1(m_composed_fg.defined() ? m_composed_fg : compose(m_fg), m_fg.tv_weight);
+        tv = tv + tv_factor(m_fg) * tv_l1(m_composed_fg.defined() ? m_composed_fg : compose(m_fg),
+                                          m_fg.tv_weight);
     m_composed_bg = m_composed_fg = torch::Tensor();
     // TV in frame px: a 2x atlas's neighbours differ by half as much, so the weight scales with
     // the atlas (docs/method.md, Model).
@@ -493,10 +532,14 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
         torch::Tensor temporal = torch::zeros({});
         for (Atlas* a : {&m_bg, &m_fg})
             if (a->warp.requires_grad())
-                temporal = temporal + (a->warp.index_select(0, idx) - a->warp.index_select(0, nidx)).pow(2).mean();
+                temporal =
+                    temporal +
+                    (a->warp.index_select(0, idx) - a->warp.index_select(0, nidx)).pow(2).mean();
         if (m_two_layers)
             temporal = temporal + 0.25 * (m_alpha_logit.index_select(0, idx) -
-                                          m_alpha_logit.index_select(0, nidx)).abs().mean();
+                                          m_alpha_logit.index_select(0, nidx))
+                                             .abs()
+                                             .mean();
         total = total + m_opts.w_temporal * temporal;
         terms["temporal"] = temporal.item<double>();
     }
@@ -506,7 +549,9 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
         const double decay = std::pow(0.5, double(step) / m_opts.bootstrap_halflife);
         const int64_t pad = (layers.alpha.size(3) - m_data.width) / 2;
         auto alpha = layers.alpha.narrow(2, pad, m_data.height).narrow(3, pad, m_data.width);
-        auto boot = ((alpha - m_data.mask.index_select(0, idx)).abs() * m_boot_weight.index_select(0, idx)).mean();
+        auto boot =
+            ((alpha - m_data.mask.index_select(0, idx)).abs() * m_boot_weight.index_select(0, idx))
+                .mean();
         total = total + m_opts.w_bootstrap * decay * boot;
         terms["bootstrap"] = boot.item<double>();
         // The residual stays small: what the frames share lives in the shared matte.
@@ -517,7 +562,9 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     return total;
 }
 
-torch::Tensor FastModel::atlas_bg() { return compose(m_bg).detach()[0]; }
+torch::Tensor FastModel::atlas_bg() {
+    return compose(m_bg).detach()[0];
+}
 torch::Tensor FastModel::atlas_fg() {
     return m_two_layers ? compose(m_fg).detach()[0] : torch::Tensor();
 }
@@ -528,11 +575,14 @@ void FastModel::set_atlas(Atlas& a, const torch::Tensor& rgb) {
                     std::to_string(a.width) + " (channels x height x width)");
     torch::NoGradGuard g;
     torch::Tensor coarse = torch::zeros({1, 3, a.height, a.width});
-    for (size_t l = 0; l + 1 < a.levels.size(); ++l) coarse += upsample(a.levels[l], a.height, a.width);
+    for (size_t l = 0; l + 1 < a.levels.size(); ++l)
+        coarse += upsample(a.levels[l], a.height, a.width);
     if (a.deblur.defined()) a.deblur.zero_();  // the image is the atlas: the texels hold all of it
     a.levels.back().copy_(rgb.unsqueeze(0) - coarse);
 }
-void FastModel::set_atlas_bg(const torch::Tensor& rgb) { set_atlas(m_bg, rgb); }
+void FastModel::set_atlas_bg(const torch::Tensor& rgb) {
+    set_atlas(m_bg, rgb);
+}
 void FastModel::set_atlas_fg(const torch::Tensor& rgb) {
     if (!m_two_layers) throw Error("this fit has one layer: there is no foreground atlas");
     set_atlas(m_fg, rgb);
@@ -541,7 +591,8 @@ void FastModel::set_atlas_fg(const torch::Tensor& rgb) {
 void FastModel::load_state(const std::map<std::string, torch::Tensor>& in) {
     auto s = in;
     // A checkpoint without "alpha_atlas" held all of alpha in its per-frame matte.
-    if (m_two_layers && !s.count("alpha_atlas")) s["alpha_atlas"] = torch::zeros_like(m_alpha_atlas);
+    if (m_two_layers && !s.count("alpha_atlas"))
+        s["alpha_atlas"] = torch::zeros_like(m_alpha_atlas);
     adopt_geometry(m_bg, "bg", s);
     if (m_two_layers) {
         adopt_geometry(m_fg, "fg", s);
@@ -557,10 +608,12 @@ void FastModel::load_state(const std::map<std::string, torch::Tensor>& in) {
 }
 
 torch::Tensor FastModel::geometry(const Atlas& a) {
-    return torch::tensor({a.origin_x, a.origin_y, double(a.width), double(a.height)}, torch::kFloat64);
+    return torch::tensor({a.origin_x, a.origin_y, double(a.width), double(a.height)},
+                         torch::kFloat64);
 }
 
-void FastModel::adopt_geometry(Atlas& a, const std::string& name, std::map<std::string, torch::Tensor>& s) {
+void FastModel::adopt_geometry(Atlas& a, const std::string& name,
+                               std::map<std::string, torch::Tensor>& s) {
     auto g = s.find(name + "_geometry"), m = s.find(name + "_to_atlas");
     if (g == s.end() || m == s.end()) {  // a checkpoint without it: the computed geometry
         s[name + "_geometry"] = geometry(a);
@@ -568,12 +621,13 @@ void FastModel::adopt_geometry(Atlas& a, const std::string& name, std::map<std::
         return;
     }
     if (!g->second.sizes().equals({4}) || !m->second.sizes().equals(a.to_atlas.sizes()))
-        throw Error("checkpoint geometry of the " + name + " atlas has shape " + c10::str(g->second.sizes()) +
-                    " / " + c10::str(m->second.sizes()) + ", the model expects [4] / " + c10::str(a.to_atlas.sizes()));
+        throw Error("checkpoint geometry of the " + name + " atlas has shape " +
+                    c10::str(g->second.sizes()) + " / " + c10::str(m->second.sizes()) +
+                    ", the model expects [4] / " + c10::str(a.to_atlas.sizes()));
     auto v = g->second.to(torch::kFloat64).contiguous();
     const double* p = v.data_ptr<double>();
-    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !(p[2] >= 1 && p[2] < 1e5) || !(p[3] >= 1 && p[3] < 1e5) ||
-        !torch::isfinite(m->second).all().item<bool>())
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !(p[2] >= 1 && p[2] < 1e5) ||
+        !(p[3] >= 1 && p[3] < 1e5) || !torch::isfinite(m->second).all().item<bool>())
         throw Error("checkpoint geometry of the " + name + " atlas is not finite or out of range");
     a.origin_x = p[0];
     a.origin_y = p[1];
@@ -596,7 +650,8 @@ void FastModel::adopt_geometry(Atlas& a, const std::string& name, std::map<std::
 
 std::map<std::string, torch::Tensor> FastModel::state() {
     std::map<std::string, torch::Tensor> s;
-    for (size_t l = 0; l < m_bg.levels.size(); ++l) s["bg_level" + std::to_string(l)] = m_bg.levels[l];
+    for (size_t l = 0; l < m_bg.levels.size(); ++l)
+        s["bg_level" + std::to_string(l)] = m_bg.levels[l];
     s["bg_warp"] = m_bg.warp;
     if (m_bg.deblur.defined()) s["bg_deblur"] = m_bg.deblur;
     s["bg_geometry"] = geometry(m_bg);
@@ -604,7 +659,8 @@ std::map<std::string, torch::Tensor> FastModel::state() {
     if (m_two_layers) {
         s["fg_geometry"] = geometry(m_fg);
         s["fg_to_atlas"] = m_fg.to_atlas;
-        for (size_t l = 0; l < m_fg.levels.size(); ++l) s["fg_level" + std::to_string(l)] = m_fg.levels[l];
+        for (size_t l = 0; l < m_fg.levels.size(); ++l)
+            s["fg_level" + std::to_string(l)] = m_fg.levels[l];
         s["fg_warp"] = m_fg.warp;
         if (m_fg.deblur.defined()) s["fg_deblur"] = m_fg.deblur;
         s["alpha_logit"] = m_alpha_logit;
@@ -612,6 +668,5 @@ std::map<std::string, torch::Tensor> FastModel::state() {
     }
     return s;
 }
-
 
 }  // namespace refocus

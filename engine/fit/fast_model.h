@@ -19,33 +19,33 @@
 namespace refocus {
 
 struct FastModelOptions {
-    int levels = 4;             // atlas pyramid levels
-    int warp_cell_px = 32;      // residual warp grid spacing
+    int levels = 4;         // atlas pyramid levels
+    int warp_cell_px = 32;  // residual warp grid spacing
     double lr_atlas = 0.01;
-    double lr_warp = 0.05;      // px per step (Adam)
+    double lr_warp = 0.05;  // px per step (Adam)
     double lr_alpha = 0.05;
-    double w_tv = 0.002;        // atlas TV weight
+    double w_tv = 0.002;  // atlas TV weight
     // ... times clamp(gain · r, 1, cap) on texels seen at one radius r in every frame (losses.h,
     // tv_radius_factor; cap 1: uniform): where the radii seen vary by less than `spread` px
     // and r < fade px (fading to 1 from fade − 1).
     double tv_radius_cap = 4.0;
     double tv_radius_gain = 2.0;
     double tv_radius_spread = 1.0;
-    double tv_radius_fade = 5.0;     // background atlas only
-    double tv_radius_layers = 3;    // which atlases: 1 background, 2 foreground, 3 both
-    double w_warp = 0.01;       // residual warp smoothness
+    double tv_radius_fade = 5.0;  // background atlas only
+    double tv_radius_layers = 3;  // which atlases: 1 background, 2 foreground, 3 both
+    double w_warp = 0.01;         // residual warp smoothness
     // Neighbouring frames' residual warps and mattes agree. Off: the residual corrects each
     // frame's own homography error (hand shake, a blurred frame's weak tracks), and pulling it
     // toward the neighbours' keeps those errors (docs/method.md, Model).
     double w_temporal = 0.0;
-    double w_bootstrap = 0.5;   // alpha to mask, halves every `bootstrap_halflife` steps
+    double w_bootstrap = 0.5;  // alpha to mask, halves every `bootstrap_halflife` steps
     int bootstrap_halflife = 400;
     double w_alpha_residual = 0.02;  // L1 on the per-frame alpha residual (logit)
     double alpha_shared_lr = 1.0;    // the shared matte's learning rate, times lr_alpha
-    int align_rounds = 2;       // ECC refinement rounds at initialisation (0: off)
-    bool static_align = true;   // ... also on a camera judged static (hand shake)
-    double atlas_scale = 1;     // atlas px per frame px (FitData::atlas_scale); TV and the
-                                // residual warps stay in frame px
+    int align_rounds = 2;            // ECC refinement rounds at initialisation (0: off)
+    bool static_align = true;        // ... also on a camera judged static (hand shake)
+    double atlas_scale = 1;          // atlas px per frame px (FitData::atlas_scale); TV and the
+                                     // residual warps stay in frame px
     // The deblurring path: a second parameterisation of each atlas, d * Q, where Q's response
     // rises where the layer's typical blur attenuates the scene (make_deblur_path). Adam moves
     // each texel by ~lr whatever its gradient's size, so detail that the blur passed at a few
@@ -60,8 +60,8 @@ struct FastModelOptions {
     // Frames per step when a layer has the path (FitOptions::batch left to the model): its
     // texels take the data's gradient through Q's gain, and two frames' worth of it is noisy.
     int deblur_batch = 4;
-    int pad = 0;                // px of scene the atlases hold beyond each frame edge (the
-                                // engine passes the largest blur support; FitModel::max_pad)
+    int pad = 0;  // px of scene the atlases hold beyond each frame edge (the
+                  // engine passes the largest blur support; FitModel::max_pad)
 };
 
 // [1,C,h,w] prefiltered for a footprint of s × s texels (a layer seen s times smaller than in
@@ -70,7 +70,7 @@ struct FastModelOptions {
 torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s);
 
 class FastModel : public FitModel {
-public:
+  public:
     FastModel(const FitData& data, const FastModelOptions& opts);
     std::string preset() const override { return "fast"; }
     std::vector<ParamGroup> param_groups() override;
@@ -88,7 +88,7 @@ public:
     std::map<std::string, torch::Tensor> state() override;
     void load_state(const std::map<std::string, torch::Tensor>& s) override;
 
-private:
+  private:
     struct Atlas {
         int64_t width = 0, height = 0;
         double scale = 1;                   // atlas px per frame px
@@ -97,23 +97,26 @@ private:
         torch::Tensor to_atlas;             // [T,3,3] float32: frame pixel → atlas pixel
         torch::Tensor warp;                 // [T,2,gh,gw] residual, px
         bool learn_warp = false;
-        torch::Tensor tv_weight;            // [1,1,Ha,Wa] TV weight per texel (undefined: 1)
-        torch::Tensor deblur;               // [1,3,h,w] the deblurring path's texels, frame px
-        torch::Tensor deblur_kernel;        // [3,1,k,k] its fixed filter
+        torch::Tensor tv_weight;      // [1,1,Ha,Wa] TV weight per texel (undefined: 1)
+        torch::Tensor deblur;         // [1,3,h,w] the deblurring path's texels, frame px
+        torch::Tensor deblur_kernel;  // [3,1,k,k] its fixed filter
     };
     // Gives `a` its deblurring path if the layer was never seen in focus; returns the log line.
     std::string make_deblur_path(Atlas& a, const torch::Tensor& radius, const torch::Tensor& weight,
                                  const torch::Tensor& views, const char* name);
     torch::Tensor compose(const Atlas& a) const;
     // Atlas pixel coordinates of frame pixels, `pad` px beyond the edges: [B,H+2pad,W+2pad,2].
-    torch::Tensor map_coords(const Atlas& a, const std::vector<int64_t>& frames, int64_t pad = 0) const;
+    torch::Tensor map_coords(const Atlas& a, const std::vector<int64_t>& frames,
+                             int64_t pad = 0) const;
     torch::Tensor to_grid(const Atlas& a, const torch::Tensor& px) const;  // → [-1,1]
     void init_levels(Atlas& a, const torch::Tensor& fused);
     // Frames (or `what`, [T,C,H,W] in frame px) fused into the atlas, sharpest-weighted.
-    torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight, const torch::Tensor& what = {}) const;
+    torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight,
+                       const torch::Tensor& what = {}) const;
     void update_tv_weights();  // each atlas's tv_weight, from the data and its geometry
-    torch::Tensor tv_weight_map(const Atlas& a, const torch::Tensor& radius, const torch::Tensor& weight,
-                                const torch::Tensor& views, double fade) const;
+    torch::Tensor tv_weight_map(const Atlas& a, const torch::Tensor& radius,
+                                const torch::Tensor& weight, const torch::Tensor& views,
+                                double fade) const;
     void set_atlas(Atlas& a, const torch::Tensor& rgb);
     static void rescale(Atlas& a, double s);
     // The composed foreground atlas ([3,h,w] or [1,3,h,w]) prefiltered for each frame's

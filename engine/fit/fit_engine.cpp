@@ -29,7 +29,9 @@ namespace F = torch::nn::functional;
 using Clock = std::chrono::steady_clock;
 
 int checked_batch_arg(int64_t n) {
-    if (n < 1) throw Error("fit: --batch must be at least 1 frame per step (got " + std::to_string(n) + ")");
+    if (n < 1)
+        throw Error("fit: --batch must be at least 1 frame per step (got " + std::to_string(n) +
+                    ")");
     return static_cast<int>(n);
 }
 
@@ -56,8 +58,10 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
 
 void FitEngine::build_model() {
     const bool atlas = has_atlas();  // a model without atlases blurs each frame by its own map
-    if (m_opts.layer_radius && atlas) split_radius_by_layer(*m_data);
-    else m_data->radius_fg = m_data->radius_bg = torch::Tensor();
+    if (m_opts.layer_radius && atlas)
+        split_radius_by_layer(*m_data);
+    else
+        m_data->radius_fg = m_data->radius_bg = torch::Tensor();
     m_model = make_model(m_opts.preset, *m_data, m_opts.seed, m_opts.settings);
     if (atlas && debug_enabled("init-atlas")) {
         // Start from given atlases (<dir>/atlas_bg.exr, and atlas_fg.exr where the file is
@@ -75,7 +79,8 @@ void FitEngine::build_model() {
     m_pad = m_model->max_pad();
     if (m_pad > 0) {
         auto padded = [&](const torch::Tensor& r) {
-            return F::pad(r.unsqueeze(1), F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
+            return F::pad(r.unsqueeze(1),
+                          F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
                 .squeeze(1);
         };
         m_radius_pad = padded(m_data->radius);
@@ -87,7 +92,9 @@ void FitEngine::build_model() {
 
 FitEngine::~FitEngine() = default;
 
-const std::vector<std::string>& FitEngine::model_notes() const { return m_model->notes; }
+const std::vector<std::string>& FitEngine::model_notes() const {
+    return m_model->notes;
+}
 
 void FitEngine::make_optimizer() {
     std::vector<torch::optim::OptimizerParamGroup> groups;
@@ -157,7 +164,8 @@ torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& fra
             out.push_back(blf.narrow(0, 0, 3) + (1.0 - blf.narrow(0, 3, 1)) * blb);
             continue;
         }
-        auto bl = lens_blur(torch::cat({a * L.fg[b], a, L.bg[b]}, 0), rf, m_data->blur);  // one 7-channel pass
+        auto bl = lens_blur(torch::cat({a * L.fg[b], a, L.bg[b]}, 0), rf,
+                            m_data->blur);  // one 7-channel pass
         out.push_back(bl.narrow(0, 0, 3) + (1.0 - bl.narrow(0, 3, 1)) * bl.narrow(0, 4, 3));
     }
     auto rb = torch::stack(out);
@@ -249,7 +257,8 @@ void FitEngine::step() {
     m_snap.terms = terms;
     m_snap.reblur_psnr = psnr_v;
     m_snap.elapsed_s = m_elapsed;
-    const double frac = m_model->steps_itself() ? double(m_step) / m_model->step_count() : budget_fraction();
+    const double frac =
+        m_model->steps_itself() ? double(m_step) / m_model->step_count() : budget_fraction();
     m_snap.progress = frac;
     m_snap.eta_s = frac > 0 ? m_elapsed * (1.0 - frac) / frac : -1.0;
     m_snap.atlas_version++;
@@ -269,7 +278,8 @@ Layers FitEngine::render_frame(int t) {
 }
 
 torch::Tensor FitEngine::fallback_weight(int t) const {
-    if (m_model->steps_itself() || !(m_opts.fallback_k > 0) || t < 0 || t >= m_data->frames) return {};
+    if (m_model->steps_itself() || !(m_opts.fallback_k > 0) || t < 0 || t >= m_data->frames)
+        return {};
     torch::NoGradGuard g;
     auto r = m_resid[t].unsqueeze(0);  // [1,1,H,W]
     if ((r < 0).any().item<bool>()) return {};

@@ -24,13 +24,13 @@ namespace refocus {
 
 struct FitOptions {
     std::string preset = "fast";  // fast | paper | perframe
-    double minutes = 0.0;          // time budget (0: none)
-    int64_t iters = 0;             // step budget (0: none); one of the two must be set
+    double minutes = 0.0;         // time budget (0: none)
+    int64_t iters = 0;            // step budget (0: none); one of the two must be set
     uint64_t seed = 1;
-    int batch = 0;                 // frames per step; 0: the model's (FitModel::preferred_batch)
-    double w_reco = 1.0;           // λ1 of paper eq. 4 (others live in the models)
-    double ms_ssim_share = 0.84;   // L_reco = 0.84·(1 − MS-SSIM) + 0.16·L1 (Zhao et al. 2016)
-    double lr_floor = 0.1;         // the learning rate decays (cosine) to this share of its own
+    int batch = 0;                // frames per step; 0: the model's (FitModel::preferred_batch)
+    double w_reco = 1.0;          // λ1 of paper eq. 4 (others live in the models)
+    double ms_ssim_share = 0.84;  // L_reco = 0.84·(1 − MS-SSIM) + 0.16·L1 (Zhao et al. 2016)
+    double lr_floor = 0.1;        // the learning rate decays (cosine) to this share of its own
     double checkpoint_seconds = 60.0;
     // Robust reconstruction (IRLS, Geman-McClure weights): pixels whose reblur residual stays
     // far above their frame's typical residual — what the model cannot explain (an occlusion
@@ -39,7 +39,7 @@ struct FitOptions {
     // A smaller c scores higher on the synth clips; 1.5 keeps most pixels near full weight on
     // footage they do not represent (docs/method.md, Robust weights and fallback).
     double robust_c = 1.5;
-    int64_t robust_warmup = 60;    // steps before the weights apply (the first fit is blurry)
+    int64_t robust_warmup = 60;  // steps before the weights apply (the first fit is blurry)
     // Fallback (FitEngine::fallback_weight): from `fallback_k` x the frame's median residual
     // (and at least `fallback_min`, sRGB) the input shows through, fully at twice that.
     double fallback_k = 4.0;
@@ -59,24 +59,24 @@ struct FitSnapshot {
     int64_t step = 0;
     double loss = 0.0;
     LossTerms terms;
-    double reblur_psnr = 0.0;      // of the last batch, sRGB, dB
-    double elapsed_s = 0.0;        // training time (pauses excluded)
-    double eta_s = -1.0;           // -1 when unknown
-    double progress = 0.0;         // 0..1 of the budget
-    int64_t atlas_version = 0;     // bumps when the atlases change
-    std::string status = "idle";   // idle | running | paused | stopped | done
+    double reblur_psnr = 0.0;     // of the last batch, sRGB, dB
+    double elapsed_s = 0.0;       // training time (pauses excluded)
+    double eta_s = -1.0;          // -1 when unknown
+    double progress = 0.0;        // 0..1 of the budget
+    int64_t atlas_version = 0;    // bumps when the atlases change
+    std::string status = "idle";  // idle | running | paused | stopped | done
 };
 
 class FitEngine {
-public:
+  public:
     FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts);
     ~FitEngine();
     const std::vector<std::string>& model_notes() const;
 
-    void step();              // one optimisation step (or one frame for `perframe`)
+    void step();  // one optimisation step (or one frame for `perframe`)
     // Whether the preset keeps atlases (perframe does not: nothing to edit or take depth from).
     bool has_atlas() const { return find_preset(m_opts.preset).has_atlas; }
-    bool done() const;        // budget used up or stop requested
+    bool done() const;  // budget used up or stop requested
     // `perframe`: whether frame t has been deconvolved (frames not reached keep the input);
     // other presets: always true.
     bool frame_done(int t) const { return m_model->frame_done(t); }
@@ -114,7 +114,7 @@ public:
     const FitOptions& options() const { return m_opts; }
     std::mutex& model_mutex() { return m_model_mutex; }  // held during step() and renders
 
-private:
+  private:
     // The reconstruction target with robust weights applied (see FitOptions::robust_c); updates
     // the running residual of `frames`.
     torch::Tensor robust_target(const torch::Tensor& rb, const torch::Tensor& target,
@@ -133,15 +133,15 @@ private:
     std::unique_ptr<FitModel> m_model;
     std::unique_ptr<torch::optim::Optimizer> m_optim;
     std::vector<double> m_base_lr;
-    torch::Tensor m_target;     // [T,3,H,W] sRGB-encoded input
-    torch::Tensor m_resid;      // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
-    int64_t m_pad = 0;          // training renders this margin beyond the frame (max_pad)
+    torch::Tensor m_target;  // [T,3,H,W] sRGB-encoded input
+    torch::Tensor m_resid;   // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
+    int64_t m_pad = 0;       // training renders this margin beyond the frame (max_pad)
     // [T,H+2pad,W+2pad] radius, edges replicated: the visible surface's, the subject's, the wall's
     torch::Tensor m_radius_pad, m_radius_fg_pad, m_radius_bg_pad;
     std::mt19937_64 m_rng;
     std::vector<int64_t> m_perm;
     size_t m_perm_pos = 0;
-    int m_batch = 2;               // frames per step: FitOptions::batch, or the model's choice
+    int m_batch = 2;  // frames per step: FitOptions::batch, or the model's choice
     int64_t m_step = 0;
     double m_elapsed = 0.0;
     double m_last_ckpt = 0.0;
@@ -150,6 +150,5 @@ private:
     std::mutex m_model_mutex;
     FitSnapshot m_snap;
 };
-
 
 }  // namespace refocus

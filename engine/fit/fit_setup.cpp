@@ -54,8 +54,8 @@ std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps
 std::string stack_key(const Project& project, const FitData& d, const FitSetupOptions& opts) {
     StackCocOptions so;
     apply_settings(opts.settings, so);
-    const std::string settings_key = std::string(so.absolute ? "/absolute" : "/relative") +
-                                     opts.settings.key("radius.");
+    const std::string settings_key =
+        std::string(so.absolute ? "/absolute" : "/relative") + opts.settings.key("radius.");
     const std::string prep = read_text_file(fs::path(prepare_dir(project)) / "prepare.json");
     // The radius is measured in the kernel's units: a pillbox's differs from the disk's.
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
@@ -90,10 +90,13 @@ torch::Tensor load_stack_radius(const Project& project, const FitData& d, const 
 void save_stack_radius(const Project& project, const torch::Tensor& radius, const std::string& key,
                        double fixed_focus_share) {
     for (int t = 0; t < radius.size(0); ++t)
-        write_image_file(stack_frame_path(project, t).string(), tensor_to_image(radius[t].contiguous()),
-                         PixelFormat::ExrFloat, false);
-    write_file_atomic(fs::path(prepare_dir(project)) / "stack_coc.json",
-                      nlohmann::json{{"key", key}, {"frames", radius.size(0)}, {"fixed_focus_share", fixed_focus_share}}.dump(2));
+        write_image_file(stack_frame_path(project, t).string(),
+                         tensor_to_image(radius[t].contiguous()), PixelFormat::ExrFloat, false);
+    write_file_atomic(
+        fs::path(prepare_dir(project)) / "stack_coc.json",
+        nlohmann::json{
+            {"key", key}, {"frames", radius.size(0)}, {"fixed_focus_share", fixed_focus_share}}
+            .dump(2));
 }
 
 }  // namespace
@@ -132,7 +135,11 @@ std::string choose_atlas_scale(FitData& d, bool radius_given, double forced) {
         d.atlas_scale = std::clamp(forced, 1.0, 4.0);
         why = "the fast.atlas_scale setting";
     }
-    return "fit (fast): atlas at " + std::string(d.atlas_scale == 1 ? "1" : d.atlas_scale == 2 ? "2" : fmt2(d.atlas_scale)) + "x the frame's resolution (" + why + ")";
+    return "fit (fast): atlas at " +
+           std::string(d.atlas_scale == 1   ? "1"
+                       : d.atlas_scale == 2 ? "2"
+                                            : fmt2(d.atlas_scale)) +
+           "x the frame's resolution (" + why + ")";
 }
 
 LensBlurParams fit_kernel_params(const std::string& kernel) {
@@ -186,8 +193,9 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     d->width = project.width;
     d->input = stack_images(frames);
     d->blur = fit_kernel_params(opts.kernel);
-    log.info("kernel: " + opts.kernel + (opts.kernel == "pillbox" ? " (a uniform disk, seed 001 eq. 1.13)"
-                                                                   : " (the paper's eq. 2, beta = 2)"));
+    log.info("kernel: " + opts.kernel +
+             (opts.kernel == "pillbox" ? " (a uniform disk, seed 001 eq. 1.13)"
+                                       : " (the paper's eq. 2, beta = 2)"));
     std::vector<Image> radius;
     if (!opts.coc_path.empty()) {
         radius = load_coc_maps(opts.coc_path, project.frames, project.width, project.height);
@@ -199,8 +207,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         for (Image& r : radius)
             for (float& v : r.pixels) v = float(table(v));
         log.info("radius: given per frame by " + opts.coc_path + " (circles of confusion; as the " +
-                 "kernel's radius, 3 px is " + fmt2(kernel_radius_for_coc(3.0, d->blur)) + ", 7 px is " +
-                 fmt2(kernel_radius_for_coc(7.0, d->blur)) + ")");
+                 "kernel's radius, 3 px is " + fmt2(kernel_radius_for_coc(3.0, d->blur)) +
+                 ", 7 px is " + fmt2(kernel_radius_for_coc(7.0, d->blur)) + ")");
     } else {
         radius = prep.coc;
     }
@@ -290,9 +298,11 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     }
     d->radius_given = !opts.coc_path.empty();
     log.info(choose_atlas_scale(*d, d->radius_given, opts.atlas_scale));
-    log.info(std::string("fit: ") + (d->static_camera ? "static camera, no learned background warp"
-                                                      : "moving camera, learned residual warp") +
-             ", " + (d->has_subject ? "two layers (moving subject)" : "one layer (no moving subject)"));
+    log.info(std::string("fit: ") +
+             (d->static_camera ? "static camera, no learned background warp"
+                               : "moving camera, learned residual warp") +
+             ", " +
+             (d->has_subject ? "two layers (moving subject)" : "one layer (no moving subject)"));
     return d;
 }
 

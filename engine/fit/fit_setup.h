@@ -23,8 +23,9 @@ struct FitSetupOptions {
     // or "disk" (paper eq. 2, β = 2; projects that name no kernel were fitted with it and keep
     // it: read_fit_settings).
     std::string kernel = "pillbox";
-    double atlas_scale = 0;  // the fast preset's atlas texels per frame pixel; 0: choose_atlas_scale
-    Settings settings;       // the radius estimator's (radius.*) and the fields above, as set
+    double atlas_scale =
+        0;              // the fast preset's atlas texels per frame pixel; 0: choose_atlas_scale
+    Settings settings;  // the radius estimator's (radius.*) and the fields above, as set
 };
 
 // Sets d.atlas_scale for the fast preset from the radius's source (given with --coc or

@@ -44,7 +44,8 @@ std::array<T, kTaps> gauss_taps() {
 
 // One plane, valid region: out[y][x] = Σ_ij k[i] k[j] in[y+i][x+j], rows then columns.
 template <typename T>
-void filter_plane(const T* in, T* out, T* tmp, int64_t h, int64_t w, const std::array<T, kTaps>& k) {
+void filter_plane(const T* in, T* out, T* tmp, int64_t h, int64_t w,
+                  const std::array<T, kTaps>& k) {
     const int64_t wo = w - (kTaps - 1), ho = h - (kTaps - 1);
     for (int64_t y = 0; y < h; ++y) {
         const T* r = in + y * w;
@@ -65,7 +66,8 @@ void filter_plane(const T* in, T* out, T* tmp, int64_t h, int64_t w, const std::
 
 // Its adjoint: spreads each output gradient back over the 11x11 window it read.
 template <typename T>
-void filter_plane_adjoint(const T* g, T* gin, T* tmp, int64_t h, int64_t w, const std::array<T, kTaps>& k) {
+void filter_plane_adjoint(const T* g, T* gin, T* tmp, int64_t h, int64_t w,
+                          const std::array<T, kTaps>& k) {
     const int64_t wo = w - (kTaps - 1), ho = h - (kTaps - 1);
     std::fill(tmp, tmp + h * wo, T(0));
     for (int64_t y = 0; y < ho; ++y) {
@@ -98,17 +100,19 @@ void for_planes(const torch::Tensor& in, torch::Tensor& out, int64_t h, int64_t 
 }
 
 class GaussFilterFunction : public torch::autograd::Function<GaussFilterFunction> {
-public:
+  public:
     static torch::Tensor forward(torch::autograd::AutogradContext*, const torch::Tensor& x) {
         auto in = x.contiguous();
         const int64_t h = in.size(2), w = in.size(3);
-        auto out = torch::empty({in.size(0), in.size(1), h - (kTaps - 1), w - (kTaps - 1)}, in.options());
+        auto out =
+            torch::empty({in.size(0), in.size(1), h - (kTaps - 1), w - (kTaps - 1)}, in.options());
         const int64_t op = out.size(2) * out.size(3);
         AT_DISPATCH_FLOATING_TYPES(in.scalar_type(), "gauss_filter_valid", [&] {
             const auto k = gauss_taps<scalar_t>();
-            for_planes<scalar_t>(in, out, h, w, h * w, op, [&](const scalar_t* i, scalar_t* o, scalar_t* t) {
-                filter_plane(i, o, t, h, w, k);
-            });
+            for_planes<scalar_t>(in, out, h, w, h * w, op,
+                                 [&](const scalar_t* i, scalar_t* o, scalar_t* t) {
+                                     filter_plane(i, o, t, h, w, k);
+                                 });
         });
         return out;
     }
@@ -120,9 +124,10 @@ public:
         const int64_t gp = g.size(2) * g.size(3);
         AT_DISPATCH_FLOATING_TYPES(g.scalar_type(), "gauss_filter_valid_adjoint", [&] {
             const auto k = gauss_taps<scalar_t>();
-            for_planes<scalar_t>(g, gin, h, w, gp, h * w, [&](const scalar_t* i, scalar_t* o, scalar_t* t) {
-                filter_plane_adjoint(i, o, t, h, w, k);
-            });
+            for_planes<scalar_t>(g, gin, h, w, gp, h * w,
+                                 [&](const scalar_t* i, scalar_t* o, scalar_t* t) {
+                                     filter_plane_adjoint(i, o, t, h, w, k);
+                                 });
         });
         return {gin};
     }
@@ -179,7 +184,9 @@ torch::Tensor ms_ssim(const torch::Tensor& a, const torch::Tensor& b, bool refer
 
 }  // namespace
 
-torch::Tensor ms_ssim_loss(const torch::Tensor& a, const torch::Tensor& b) { return ms_ssim(a, b, false); }
+torch::Tensor ms_ssim_loss(const torch::Tensor& a, const torch::Tensor& b) {
+    return ms_ssim(a, b, false);
+}
 
 torch::Tensor ms_ssim_loss_reference(const torch::Tensor& a, const torch::Tensor& b) {
     return ms_ssim(a, b, true);
@@ -215,8 +222,8 @@ torch::Tensor tv_l1(const torch::Tensor& x, const torch::Tensor& weight) {
 }
 
 torch::Tensor tv_radius_factor(const torch::Tensor& r_sharp, const torch::Tensor& r_mean,
-                               const torch::Tensor& r_sq_mean, double gain, double cap, double spread,
-                               double fade) {
+                               const torch::Tensor& r_sq_mean, double gain, double cap,
+                               double spread, double fade) {
     auto sd = (r_sq_mean - r_mean * r_mean).clamp_min(0).sqrt();
     auto same = (1.0 - sd / std::max(spread, 1e-6)).clamp(0, 1);
     if (fade > 0) same = same * (fade - r_sharp).clamp(0, 1);

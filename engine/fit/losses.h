@@ -38,7 +38,7 @@ torch::Tensor tv_l1(const torch::Tensor& x, const torch::Tensor& weight = {});
 // background atlas's weight from 4 to 5 px and keeps the subject's at any radius
 // (docs/method.md, Model).
 torch::Tensor tv_radius_factor(const torch::Tensor& r_sharp, const torch::Tensor& r_mean,
-                               const torch::Tensor& r_sq_mean, double gain, double cap, double spread,
-                               double fade = 0);
+                               const torch::Tensor& r_sq_mean, double gain, double cap,
+                               double spread, double fade = 0);
 
 }  // namespace refocus

@@ -22,7 +22,9 @@ namespace F = torch::nn::functional;
 
 namespace {
 
-int64_t round_up8(int64_t v) { return (v + 7) / 8 * 8; }
+int64_t round_up8(int64_t v) {
+    return (v + 7) / 8 * 8;
+}
 
 // Rigidity of a 2×2 Jacobian field (Layered Neural Atlases §3.3, their code): J is a rotation
 // iff JᵀJ = I; ‖JᵀJ‖_F + ‖(JᵀJ)⁻¹‖_F − 2√2 is 0 there and grows with stretch and shrink alike.
@@ -81,7 +83,9 @@ AtlasDecoderImpl::AtlasDecoderImpl(int in_channels, const std::vector<int>& chan
     register_module("net", net);
 }
 
-torch::Tensor AtlasDecoderImpl::forward(const torch::Tensor& z) { return net->forward(z); }
+torch::Tensor AtlasDecoderImpl::forward(const torch::Tensor& z) {
+    return net->forward(z);
+}
 
 // ------------------------------------------------------------------------------- model
 
@@ -89,7 +93,8 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
     : m_data(d), m_opts(options), m_seed(seed) {
     const PaperModelOptions& opts = m_opts;
     if (opts.decoder_channels.size() != 3)
-        throw Error("paper preset: the atlas decoder has 3 pixel-shuffle stages (atlas = 8 × noise)");
+        throw Error(
+            "paper preset: the atlas decoder has 3 pixel-shuffle stages (atlas = 8 × noise)");
     torch::manual_seed(seed);
     const int64_t T = d.frames, H = d.height, W = d.width;
     const int s = std::max(1, opts.mlp_stride);
@@ -162,10 +167,12 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
         const auto t1 = std::chrono::steady_clock::now();
         pretrain_atlases(fb, ff);
         if (debug_enabled("paper"))
-            std::fprintf(stderr, "paper: atlas bg %lldx%lld fg %lldx%lld; pretrain maps %.1f s, atlases %.1f s\n",
-                         (long long)m_bg.width, (long long)m_bg.height, (long long)m_fg.width,
-                         (long long)m_fg.height, std::chrono::duration<double>(t1 - t0).count(),
-                         std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count());
+            std::fprintf(
+                stderr,
+                "paper: atlas bg %lldx%lld fg %lldx%lld; pretrain maps %.1f s, atlases %.1f s\n",
+                (long long)m_bg.width, (long long)m_bg.height, (long long)m_fg.width,
+                (long long)m_fg.height, std::chrono::duration<double>(t1 - t0).count(),
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count());
     }
 }
 
@@ -175,8 +182,8 @@ void PaperModel::init_residual(Layer& l) {
     auto last = l.map->net->ptr(l.map->net->size() - 1)->as<torch::nn::Linear>();
     last->weight.zero_();
     last->bias.zero_();
-    l.residual_scale = torch::tensor({float(m_opts.residual_px * 2.0 / l.width),
-                                      float(m_opts.residual_px * 2.0 / l.height)});
+    l.residual_scale = torch::tensor(
+        {float(m_opts.residual_px * 2.0 / l.width), float(m_opts.residual_px * 2.0 / l.height)});
 }
 
 torch::Tensor PaperModel::coords(const torch::Tensor& x, const torch::Tensor& y,
@@ -202,7 +209,8 @@ torch::Tensor PaperModel::lattice(const std::vector<int64_t>& frames) const {
 
 torch::Tensor PaperModel::full_lattice(const std::vector<int64_t>& frames) const {
     const int64_t B = frames.size(), H = m_data.height, W = m_data.width;
-    auto g = torch::meshgrid({torch::arange(H, torch::kFloat32), torch::arange(W, torch::kFloat32)}, "ij");
+    auto g = torch::meshgrid({torch::arange(H, torch::kFloat32), torch::arange(W, torch::kFloat32)},
+                             "ij");
     auto t = torch::tensor(frames, torch::kFloat32).view({B, 1, 1}).expand({B, H, W});
     return coords(g[1].expand({B, H, W}), g[0].expand({B, H, W}), t);
 }
@@ -210,8 +218,8 @@ torch::Tensor PaperModel::full_lattice(const std::vector<int64_t>& frames) const
 torch::Tensor PaperModel::target_uv(const Layer& l, const torch::Tensor& px,
                                     const torch::Tensor& t) const {
     // px [N,2] frame pixels, t [N] long → [N,2] grid coordinates of the homography mapping.
-    auto m = l.to_atlas.index_select(0, t);                                        // [N,3,3]
-    auto h = torch::cat({px, torch::ones({px.size(0), 1})}, 1).unsqueeze(2);        // [N,3,1]
+    auto m = l.to_atlas.index_select(0, t);                                   // [N,3,3]
+    auto h = torch::cat({px, torch::ones({px.size(0), 1})}, 1).unsqueeze(2);  // [N,3,1]
     auto q = torch::matmul(m, h).squeeze(2);
     auto a = q.narrow(1, 0, 2) / q.narrow(1, 2, 1);
     auto scale = torch::tensor({2.0f / l.width, 2.0f / l.height});
@@ -229,7 +237,8 @@ torch::Tensor PaperModel::base_uv(const Layer& l, const torch::Tensor& p) const 
     // p normalised → frame pixel and frame index → the geometric mapping's grid coordinates.
     const double W = m_data.width, H = m_data.height, T = m_data.frames;
     auto q = p.reshape({-1, 3});
-    auto px = torch::stack({(q.select(1, 0) + 1.0) * ((W - 1) / 2.0), (q.select(1, 1) + 1.0) * ((H - 1) / 2.0)}, 1);
+    auto px = torch::stack(
+        {(q.select(1, 0) + 1.0) * ((W - 1) / 2.0), (q.select(1, 1) + 1.0) * ((H - 1) / 2.0)}, 1);
     auto t = ((q.select(1, 2) + 1.0) * ((T - 1) / 2.0)).round().clamp(0, T - 1).to(torch::kLong);
     auto shape = p.sizes().vec();
     shape.back() = 2;
@@ -287,7 +296,8 @@ void PaperModel::pretrain_mappings() {
         auto tf = pts.select(1, 2);
         auto t = tf.to(torch::kLong);
         auto p = coords(pts.select(1, 0), pts.select(1, 1), tf);
-        auto lin = t * (m_data.height * m_data.width) + pts.select(1, 1).to(torch::kLong) * m_data.width +
+        auto lin = t * (m_data.height * m_data.width) +
+                   pts.select(1, 1).to(torch::kLong) * m_data.width +
                    pts.select(1, 0).to(torch::kLong);
         auto mk = m_data.mask.reshape({-1}).index_select(0, lin).unsqueeze(1);
         auto loss = 10.0 * (alpha(p) - mk).pow(2).mean();
@@ -301,7 +311,8 @@ void PaperModel::pretrain_mappings() {
 
 void PaperModel::pretrain_atlases(const torch::Tensor& fused_bg, const torch::Tensor& fused_fg) {
     if (m_opts.pretrain_atlas_steps <= 0) return;
-    torch::optim::Adam opt(m_decoder->parameters(), torch::optim::AdamOptions(m_opts.lr_pretrain_atlas));
+    torch::optim::Adam opt(m_decoder->parameters(),
+                           torch::optim::AdamOptions(m_opts.lr_pretrain_atlas));
     for (int it = 0; it < m_opts.pretrain_atlas_steps; ++it) {
         auto loss = (m_decoder->forward(m_bg.noise)[0] - fused_bg).abs().mean();
         if (m_two_layers) loss = loss + (m_decoder->forward(m_fg.noise)[0] - fused_fg).abs().mean();
@@ -311,9 +322,11 @@ void PaperModel::pretrain_atlases(const torch::Tensor& fused_bg, const torch::Te
         if (debug_enabled("paper") && it + 1 == m_opts.pretrain_atlas_steps)
             std::fprintf(stderr, "paper: atlas pre-training L1 %.4g\n", loss.item<double>());
         if (debug_enabled("paper") && it % 50 == 0)
-            std::fprintf(stderr, "paper: atlas pre-training step %d L1 %.4g target bg mean %.3g fg mean %.3g\n", it,
-                         loss.item<double>(), fused_bg.mean().item<double>(),
-                         fused_fg.defined() ? fused_fg.mean().item<double>() : 0.0);
+            std::fprintf(
+                stderr,
+                "paper: atlas pre-training step %d L1 %.4g target bg mean %.3g fg mean %.3g\n", it,
+                loss.item<double>(), fused_bg.mean().item<double>(),
+                fused_fg.defined() ? fused_fg.mean().item<double>() : 0.0);
     }
 }
 
@@ -332,7 +345,7 @@ std::vector<ParamGroup> PaperModel::param_groups() {
 Layers PaperModel::render(const std::vector<int64_t>& frames) {
     const int64_t B = frames.size();
     Layers out;
-    auto p = lattice(frames);  // [B,h,w,3]
+    auto p = lattice(frames);                       // [B,h,w,3]
     auto to_full = [&](const torch::Tensor& lat) {  // [B,h,w,C] → [B,H,W,C]
         return up(lat.permute({0, 3, 1, 2})).permute({0, 2, 3, 1}).contiguous();
     };
@@ -377,7 +390,8 @@ torch::Tensor PaperModel::priors(const Layers& layers, const std::vector<int64_t
     if (m_two_layers) {
         // The CPU-sized foreground atlas covers the subject only: judge M_f where α says the
         // foreground is seen.
-        a_pts = alpha(coords(pts.select(1, 0), pts.select(1, 1), pts.select(1, 2))).squeeze(1).detach();
+        a_pts =
+            alpha(coords(pts.select(1, 0), pts.select(1, 1), pts.select(1, 2))).squeeze(1).detach();
         rigid = rigid + (rigidity(m_fg, pts) * a_pts).sum() / a_pts.sum().clamp_min(1.0);
     }
     total = total + inv_l1 * m_opts.w_rigid * rigid;
@@ -418,9 +432,10 @@ torch::Tensor PaperModel::priors(const Layers& layers, const std::vector<int64_t
         // Ramped in (0 before sparsity_start, full weight sparsity_ramp steps later): at full
         // weight from step 0 it outweighs the reconstruction ~300:1 on the soft mask edges and,
         // through the decoder shared with the background, pulls both atlases to black.
-        const double ramp = m_opts.sparsity_ramp > 0
-                                ? std::clamp(double(step - m_opts.sparsity_start) / m_opts.sparsity_ramp, 0.0, 1.0)
-                                : (step >= m_opts.sparsity_start ? 1.0 : 0.0);
+        const double ramp =
+            m_opts.sparsity_ramp > 0
+                ? std::clamp(double(step - m_opts.sparsity_start) / m_opts.sparsity_ramp, 0.0, 1.0)
+                : (step >= m_opts.sparsity_start ? 1.0 : 0.0);
         total = total + inv_l1 * ramp * m_opts.w_sparsity * sparse;
         terms["sparsity"] = sparse.item<double>();
         // Mask bootstrap (LNA §3.3), decaying.
@@ -466,6 +481,5 @@ std::map<std::string, torch::Tensor> PaperModel::state() {
     }
     return s;
 }
-
 
 }  // namespace refocus

@@ -40,9 +40,9 @@ struct PaperModelOptions {
     // Networks (LNA: mappings 4×256, alpha 8×256; here narrower for the CPU).
     int map_layers = 4, map_width = 128, map_freqs = 2;
     int alpha_layers = 6, alpha_width = 128, alpha_freqs = 5;
-    int mlp_stride = 4;             // MLPs evaluated every `mlp_stride` px, then interpolated
-    double residual_px = 12.0;      // largest offset M_b, M_f may add to the geometric mapping
-    int noise_channels = 32;        // C of Z_f, Z_b (H/8 × W/8)
+    int mlp_stride = 4;         // MLPs evaluated every `mlp_stride` px, then interpolated
+    double residual_px = 12.0;  // largest offset M_b, M_f may add to the geometric mapping
+    int noise_channels = 32;    // C of Z_f, Z_b (H/8 × W/8)
     std::vector<int> decoder_channels{64, 48, 32};  // after each pixel-shuffle stage
     // Learning rates (Adam).
     double lr_map = 1e-4, lr_alpha = 5e-4, lr_decoder = 1e-3;
@@ -50,9 +50,9 @@ struct PaperModelOptions {
     // engine's FitOptions::w_reco.
     double w_reco = 0.3, w_flow = 1.5, w_sparsity = 100.0, w_rigid = 0.5;
     int sparsity_start = 100, sparsity_ramp = 300;  // λ3 ramps in over these steps
-    double w_bootstrap = 1.0;       // α to the masks (LNA §3.3), halves every halflife steps
+    double w_bootstrap = 1.0;  // α to the masks (LNA §3.3), halves every halflife steps
     int bootstrap_halflife = 400;
-    int prior_points = 2048;        // random points per step for rigidity and flow
+    int prior_points = 2048;  // random points per step for rigidity and flow
     // Pre-training in the constructor.
     int pretrain_map_steps = 300, pretrain_atlas_steps = 300;
     // 5e-3 brings the decoded atlas closest to the fusion in 300 steps, so the fit starts from
@@ -78,7 +78,7 @@ struct AtlasDecoderImpl : torch::nn::Module {
 TORCH_MODULE(AtlasDecoder);
 
 class PaperModel : public FitModel {
-public:
+  public:
     PaperModel(const FitData& data, const PaperModelOptions& opts, uint64_t seed);
     std::string preset() const override { return "paper"; }
     std::vector<ParamGroup> param_groups() override;
@@ -92,27 +92,29 @@ public:
     void set_atlas_fg(const torch::Tensor& rgb) override;
     std::map<std::string, torch::Tensor> state() override;
 
-private:
+  private:
     struct Layer {
         int64_t width = 0, height = 0;  // atlas size, multiple of 8
-        torch::Tensor to_atlas;         // [T,3,3] float32: frame pixel → atlas pixel (init target)
-        torch::Tensor noise;            // [1,C,H/8,W/8] Z, fixed
-        CoordMlp map{nullptr};          // M_b or M_f (residual over to_atlas)
-        torch::Tensor residual_scale;   // [2] grid units of residual_px
-        bool learn_residual = true;     // false: the geometric mapping only (static camera bg)
+        torch::Tensor to_atlas;        // [T,3,3] float32: frame pixel → atlas pixel (init target)
+        torch::Tensor noise;           // [1,C,H/8,W/8] Z, fixed
+        CoordMlp map{nullptr};         // M_b or M_f (residual over to_atlas)
+        torch::Tensor residual_scale;  // [2] grid units of residual_px
+        bool learn_residual = true;    // false: the geometric mapping only (static camera bg)
     };
-    torch::Tensor coords(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& t) const;
+    torch::Tensor coords(const torch::Tensor& x, const torch::Tensor& y,
+                         const torch::Tensor& t) const;
     torch::Tensor lattice(const std::vector<int64_t>& frames) const;  // [B,h,w,3] normalised p
     torch::Tensor target_uv(const Layer& l, const torch::Tensor& px, const torch::Tensor& t) const;
     torch::Tensor full_lattice(const std::vector<int64_t>& frames) const;  // [B,H,W,3] every pixel
     torch::Tensor base_uv(const Layer& l, const torch::Tensor& p) const;   // geometric mapping
     torch::Tensor residual(Layer& l, const torch::Tensor& p);  // MLP offset, [...,3] → [...,2]
-    torch::Tensor uv(Layer& l, const torch::Tensor& p);       // [...,3] → [...,2]
+    torch::Tensor uv(Layer& l, const torch::Tensor& p);        // [...,3] → [...,2]
     void init_residual(Layer& l);
-    torch::Tensor alpha(const torch::Tensor& p);                   // [...,3] → [...,1]
+    torch::Tensor alpha(const torch::Tensor& p);     // [...,3] → [...,1]
     torch::Tensor up(const torch::Tensor& x) const;  // [B,C,h,w] lattice → [B,C,H,W]
     // src [T,C,H,W] pulled into the atlas, weighted toward the sharpest views → [C,Ha,Wa]
-    torch::Tensor fused(const Layer& l, const torch::Tensor& weight, const torch::Tensor& src) const;
+    torch::Tensor fused(const Layer& l, const torch::Tensor& weight,
+                        const torch::Tensor& src) const;
     void pretrain_mappings();
     void pretrain_atlases(const torch::Tensor& fused_bg, const torch::Tensor& fused_fg);
     torch::Tensor rigidity(Layer& l, const torch::Tensor& p);
@@ -124,7 +126,7 @@ private:
     bool m_two_layers = false;
     int64_t m_lh = 0, m_lw = 0;  // MLP lattice size
     Layer m_bg, m_fg;
-    CoordMlp m_alpha{nullptr};   // M_α
+    CoordMlp m_alpha{nullptr};  // M_α
     AtlasDecoder m_decoder{nullptr};
 };
 

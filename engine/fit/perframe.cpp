@@ -69,7 +69,6 @@ void check_options(const TvDeconvOptions& o) {
     check_lens_blur_params(o.blur);
 }
 
-
 // ---- Preconditioner for the u-subproblem ----
 // CG on A = HᵀH + ρ∇ᵀ∇ converges slowly where H nearly cancels frequencies (the disk's
 // spectrum has zeros), so the u-step is preconditioned with the Fourier inverse of A for a
@@ -78,7 +77,7 @@ void check_options(const TvDeconvOptions& o) {
 // radius is covered by a few levels blended with per-pixel weights m_j, Σ m_j² = 1:
 //     P = Σ_j M_j P_j M_j   (symmetric positive definite, so PCG stays exact).
 class Preconditioner {
-public:
+  public:
     Preconditioner(const torch::Tensor& radius, double rho, const LensBlurParams& blur,
                    int64_t channels) {
         const int64_t h = radius.size(0), w = radius.size(1);
@@ -122,11 +121,11 @@ public:
         return out;
     }
 
-private:
+  private:
     // |K̂| of the lens blur kernel at constant radius r on the periodic H×W grid (real: the
     // kernels are symmetric). The kernel is the model's own: lens_blur of a centred delta.
-    static torch::Tensor kernel_spectrum(double r, const LensBlurParams& blur, int64_t h,
-                                         int64_t w, const torch::TensorOptions& opts) {
+    static torch::Tensor kernel_spectrum(double r, const LensBlurParams& blur, int64_t h, int64_t w,
+                                         const torch::TensorOptions& opts) {
         if (r <= blur.min_radius) return torch::ones({h, w / 2 + 1}, opts);
         const int64_t s = static_cast<int64_t>(std::ceil(lens_blur_support(r, blur))) + 1;
         const int64_t n = 2 * s + 1;
@@ -198,7 +197,8 @@ torch::Tensor deconvolve_tv(const torch::Tensor& blurred, const torch::Tensor& r
     const auto g = blurred.contiguous();
     const auto r = radius.to(g.scalar_type()).contiguous();
     const double lambda = options.lambda;
-    const double rho = options.rho > 0 ? options.rho : std::max(kDefaultRhoPerLambda * lambda, 1e-6);
+    const double rho =
+        options.rho > 0 ? options.rho : std::max(kDefaultRhoPerLambda * lambda, 1e-6);
     st.rho = rho;
     auto H = [&](const torch::Tensor& x) {
         ++st.blur_applications;
@@ -287,8 +287,8 @@ torch::Tensor deconvolve_tv(const torch::Tensor& blurred, const torch::Tensor& r
         st.objective.push_back(e);
         st.data_term = data;
         st.tv_term = tv;
-        const double change = (u - u_prev).norm().item<double>() /
-                              std::max(u.norm().item<double>(), 1e-12);
+        const double change =
+            (u - u_prev).norm().item<double>() / std::max(u.norm().item<double>(), 1e-12);
         st.rel_change.push_back(change);
         st.iterations = it + 1;
         if (change < options.tol) {

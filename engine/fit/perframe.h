@@ -52,10 +52,10 @@ struct PerframeOptions {
 };
 
 struct TvDeconvStats {
-    int iterations = 0;         // ADMM iterations run
-    bool converged = false;     // stopped on tol (not on the iteration cap)
-    bool skipped_sharp = false; // max radius < sharp_radius: nothing done
-    double rho = 0.0;           // the penalty used
+    int iterations = 0;          // ADMM iterations run
+    bool converged = false;      // stopped on tol (not on the iteration cap)
+    bool skipped_sharp = false;  // max radius < sharp_radius: nothing done
+    double rho = 0.0;            // the penalty used
     double seconds = 0.0;
     int blur_applications = 0;  // calls of lens_blur plus lens_blur_adjoint
     // E(u_k) of eq. 1.5/1.7 for k = 0 (u = g) .. iterations, before the output clamp,
@@ -78,7 +78,7 @@ double colour_tv(const torch::Tensor& image);
 
 // The same on refocus::Image: a linear RGB frame (3 channels) and a 1-channel radius map of the
 // same size.
-Image deconvolve_frame(const Image& blurred, const Image& radius, const TvDeconvOptions& options = {},
-                       TvDeconvStats* stats = nullptr);
+Image deconvolve_frame(const Image& blurred, const Image& radius,
+                       const TvDeconvOptions& options = {}, TvDeconvStats* stats = nullptr);
 
 }  // namespace refocus

@@ -19,16 +19,23 @@ Layers PerframeModel::render(const std::vector<int64_t>& frames) {
     return L;
 }
 
-torch::Tensor PerframeModel::priors(const Layers&, const std::vector<int64_t>&, int64_t, LossTerms&) {
+torch::Tensor PerframeModel::priors(const Layers&, const std::vector<int64_t>&, int64_t,
+                                    LossTerms&) {
     return torch::zeros({});
 }
 
 torch::Tensor PerframeModel::atlas_bg() {
     throw Error("the perframe preset has no atlas (it deconvolves each frame alone)");
 }
-torch::Tensor PerframeModel::atlas_fg() { return atlas_bg(); }
-void PerframeModel::set_atlas_bg(const torch::Tensor&) { atlas_bg(); }
-void PerframeModel::set_atlas_fg(const torch::Tensor&) { atlas_bg(); }
+torch::Tensor PerframeModel::atlas_fg() {
+    return atlas_bg();
+}
+void PerframeModel::set_atlas_bg(const torch::Tensor&) {
+    atlas_bg();
+}
+void PerframeModel::set_atlas_fg(const torch::Tensor&) {
+    atlas_bg();
+}
 
 std::map<std::string, torch::Tensor> PerframeModel::state() {
     return {{"sharp", m_sharp}, {"done", m_done}};

@@ -8,7 +8,7 @@
 namespace refocus {
 
 class PerframeModel : public FitModel {
-public:
+  public:
     PerframeModel(const FitData& data, const PerframeOptions& opts);
     std::string preset() const override { return "perframe"; }
     std::vector<ParamGroup> param_groups() override { return {}; }
@@ -25,7 +25,7 @@ public:
     int64_t step_count() const override { return m_data.frames; }
     bool frame_done(int t) const override;
 
-private:
+  private:
     const FitData& m_data;
     PerframeOptions m_opts;
     torch::Tensor m_sharp;  // [T,3,H,W] linear light: the input until a frame is deconvolved

@@ -24,8 +24,8 @@ std::unique_ptr<FitModel> make_fast(const FitData& data, const Settings& s, uint
     // The atlases reach past the frame by the widest blur support, so that edge pixels are
     // explained by the scene beyond the edge (FitModel::render_padded).
     if (!s.has("fast.pad"))
-        o.pad = int(std::clamp(std::ceil(lens_blur_support(data.radius.max().item<double>(), data.blur)),
-                               0.0, 48.0));
+        o.pad = int(std::clamp(
+            std::ceil(lens_blur_support(data.radius.max().item<double>(), data.blur)), 0.0, 48.0));
     o.atlas_scale = data.atlas_scale;
     return std::make_unique<FastModel>(data, o);
 }

@@ -12,7 +12,6 @@
 
 namespace refocus {
 
-
 struct PresetInfo {
     std::string name;
     std::string description;  // one line, for help texts and the studio

@@ -25,10 +25,10 @@ template <class S>
 struct Field {
     const char* name;
     std::variant<double S::*, int S::*, int64_t S::*, bool S::*, std::string S::*> member;
-    double lo, hi;                     // numbers: the valid range (inclusive)
+    double lo, hi;  // numbers: the valid range (inclusive)
     const char* help;
     std::vector<std::string> choices = {};  // strings: the valid values
-    const char* def_text = nullptr;    // the default where the member's initialiser is not it
+    const char* def_text = nullptr;         // the default where the member's initialiser is not it
 };
 
 constexpr double kInf = 1e300;
@@ -36,10 +36,14 @@ constexpr double kInf = 1e300;
 const std::vector<Field<FitOptions>>& fit_fields() {
     using O = FitOptions;
     static const std::vector<Field<O>> f = {
-        {"fit.w_reco", &O::w_reco, 0, 1e6, "weight of the reconstruction loss (paper eq. 4, lambda1)"},
-        {"fit.ms_ssim_share", &O::ms_ssim_share, 0, 1, "share of (1 - MS-SSIM) in L_reco; the rest is L1"},
-        {"fit.lr_floor", &O::lr_floor, 0, 1, "the learning rate decays (cosine) to this share of its own"},
-        {"fit.checkpoint_seconds", &O::checkpoint_seconds, 1, 1e6, "training seconds between checkpoints"},
+        {"fit.w_reco", &O::w_reco, 0, 1e6,
+         "weight of the reconstruction loss (paper eq. 4, lambda1)"},
+        {"fit.ms_ssim_share", &O::ms_ssim_share, 0, 1,
+         "share of (1 - MS-SSIM) in L_reco; the rest is L1"},
+        {"fit.lr_floor", &O::lr_floor, 0, 1,
+         "the learning rate decays (cosine) to this share of its own"},
+        {"fit.checkpoint_seconds", &O::checkpoint_seconds, 1, 1e6,
+         "training seconds between checkpoints"},
         {"fit.robust_c", &O::robust_c, 0, 1e6,
          "robust weights: Geman-McClure scale, times the frame's median residual (0: off)"},
         {"fit.robust_warmup", &O::robust_warmup, 0, 1e9, "steps before the robust weights apply"},
@@ -55,7 +59,10 @@ const std::vector<Field<FitOptions>>& fit_fields() {
 const std::vector<Field<FitSetupOptions>>& setup_fields() {
     using O = FitSetupOptions;
     static const std::vector<Field<O>> f = {
-        {"fit.kernel", &O::kernel, 0, 0,
+        {"fit.kernel",
+         &O::kernel,
+         0,
+         0,
          "the lens blur layer's kernel: pillbox (seed 001 eq. 1.13) or disk (paper eq. 2, beta 2)",
          {"pillbox", "disk"}},
         {"fast.atlas_scale", &O::atlas_scale, 0, 4,
@@ -70,30 +77,50 @@ const std::vector<Field<FastModelOptions>>& fast_fields() {
         {"fast.lr_atlas", &O::lr_atlas, 0, 10, "atlas texels' learning rate (Adam)"},
         {"fast.lr_warp", &O::lr_warp, 0, 10, "residual warps' learning rate, px a step (Adam)"},
         {"fast.lr_alpha", &O::lr_alpha, 0, 10, "alpha logits' learning rate (Adam)"},
-        {"fast.alpha_shared_lr", &O::alpha_shared_lr, 0, 100, "the shared matte's learning rate, times lr_alpha"},
+        {"fast.alpha_shared_lr", &O::alpha_shared_lr, 0, 100,
+         "the shared matte's learning rate, times lr_alpha"},
         {"fast.w_tv", &O::w_tv, 0, 1e3, "atlas total variation weight"},
         {"fast.tv_radius_cap", &O::tv_radius_cap, 1, 1e3,
          "TV factor cap on texels seen at one radius in every frame (1: uniform TV)"},
         {"fast.tv_radius_gain", &O::tv_radius_gain, 0, 1e3, "... TV factor per px of that radius"},
-        {"fast.tv_radius_spread", &O::tv_radius_spread, 0, 1e3, "... where the radii seen vary by less (px)"},
-        {"fast.tv_radius_fade", &O::tv_radius_fade, 0, 1e3, "... and the radius is under this (px)"},
-        {"fast.tv_radius_layers", &O::tv_radius_layers, 0, 3, "... on which atlases: 1 background, 2 foreground, 3 both"},
+        {"fast.tv_radius_spread", &O::tv_radius_spread, 0, 1e3,
+         "... where the radii seen vary by less (px)"},
+        {"fast.tv_radius_fade", &O::tv_radius_fade, 0, 1e3,
+         "... and the radius is under this (px)"},
+        {"fast.tv_radius_layers", &O::tv_radius_layers, 0, 3,
+         "... on which atlases: 1 background, 2 foreground, 3 both"},
         {"fast.w_warp", &O::w_warp, 0, 1e3, "residual warp smoothness weight"},
-        {"fast.w_temporal", &O::w_temporal, 0, 1e3, "neighbouring frames' residual warps and mattes agree"},
-        {"fast.w_alpha_residual", &O::w_alpha_residual, 0, 1e3, "L1 on the per-frame alpha residual"},
+        {"fast.w_temporal", &O::w_temporal, 0, 1e3,
+         "neighbouring frames' residual warps and mattes agree"},
+        {"fast.w_alpha_residual", &O::w_alpha_residual, 0, 1e3,
+         "L1 on the per-frame alpha residual"},
         {"fast.w_bootstrap", &O::w_bootstrap, 0, 1e3, "alpha to the masks at the start"},
-        {"fast.bootstrap_halflife", &O::bootstrap_halflife, 1, 1e9, "... halving every this many steps"},
+        {"fast.bootstrap_halflife", &O::bootstrap_halflife, 1, 1e9,
+         "... halving every this many steps"},
         {"fast.warp_cell_px", &O::warp_cell_px, 4, 1024, "residual warp grid spacing (px)"},
-        {"fast.align_rounds", &O::align_rounds, 0, 20, "ECC alignment rounds at initialisation (0: off)"},
-        {"fast.static_align", &O::static_align, 0, 1, "a static camera's frames are aligned for hand shake"},
-        {"fast.deblur_path", &O::deblur_path, 0, 1, "a layer never seen in focus trains through a deblurring filter"},
-        {"fast.deblur_eps", &O::deblur_eps, 1e-9, 1, "... whose gain is capped at about 1/sqrt(eps)"},
+        {"fast.align_rounds", &O::align_rounds, 0, 20,
+         "ECC alignment rounds at initialisation (0: off)"},
+        {"fast.static_align", &O::static_align, 0, 1,
+         "a static camera's frames are aligned for hand shake"},
+        {"fast.deblur_path", &O::deblur_path, 0, 1,
+         "a layer never seen in focus trains through a deblurring filter"},
+        {"fast.deblur_eps", &O::deblur_eps, 1e-9, 1,
+         "... whose gain is capped at about 1/sqrt(eps)"},
         {"fast.deblur_lr", &O::deblur_lr, 0, 100, "... at this learning rate, times lr_atlas"},
-        {"fast.deblur_min_radius", &O::deblur_min_radius, 0, 100, "... on layers blurred at least this much (px)"},
-        {"fast.deblur_tv", &O::deblur_tv, 0, 100, "TV factor on an atlas with the path (estimated radius)"},
-        {"fast.deblur_tv_given", &O::deblur_tv_given, 0, 100, "TV factor on an atlas with the path (radius given by --coc)"},
-        {"fast.deblur_batch", &O::deblur_batch, 1, 64, "frames a step when a layer has the path and --batch is not given"},
-        {"fast.pad", &O::pad, 0, 48, "px of scene the atlases hold beyond the frame", {},
+        {"fast.deblur_min_radius", &O::deblur_min_radius, 0, 100,
+         "... on layers blurred at least this much (px)"},
+        {"fast.deblur_tv", &O::deblur_tv, 0, 100,
+         "TV factor on an atlas with the path (estimated radius)"},
+        {"fast.deblur_tv_given", &O::deblur_tv_given, 0, 100,
+         "TV factor on an atlas with the path (radius given by --coc)"},
+        {"fast.deblur_batch", &O::deblur_batch, 1, 64,
+         "frames a step when a layer has the path and --batch is not given"},
+        {"fast.pad",
+         &O::pad,
+         0,
+         48,
+         "px of scene the atlases hold beyond the frame",
+         {},
          "the widest blur support"},
     };
     return f;
@@ -112,11 +139,15 @@ const std::vector<Field<PaperModelOptions>>& paper_fields() {
         {"paper.lr_map", &O::lr_map, 0, 10, "mapping MLPs' learning rate"},
         {"paper.lr_alpha", &O::lr_alpha, 0, 10, "alpha MLP's learning rate"},
         {"paper.lr_decoder", &O::lr_decoder, 0, 10, "atlas decoder's learning rate"},
-        {"paper.lr_pretrain_atlas", &O::lr_pretrain_atlas, 0, 10, "atlas decoder's pre-training learning rate"},
+        {"paper.lr_pretrain_atlas", &O::lr_pretrain_atlas, 0, 10,
+         "atlas decoder's pre-training learning rate"},
         {"paper.pretrain_map_steps", &O::pretrain_map_steps, 0, 1e6, "mapping pre-training steps"},
-        {"paper.pretrain_atlas_steps", &O::pretrain_atlas_steps, 0, 1e6, "atlas pre-training steps"},
-        {"paper.mlp_stride", &O::mlp_stride, 1, 64, "MLPs evaluated every this many px, then interpolated"},
-        {"paper.residual_px", &O::residual_px, 0, 1e4, "largest offset the mappings add to the geometric one (px)"},
+        {"paper.pretrain_atlas_steps", &O::pretrain_atlas_steps, 0, 1e6,
+         "atlas pre-training steps"},
+        {"paper.mlp_stride", &O::mlp_stride, 1, 64,
+         "MLPs evaluated every this many px, then interpolated"},
+        {"paper.residual_px", &O::residual_px, 0, 1e4,
+         "largest offset the mappings add to the geometric one (px)"},
     };
     return f;
 }
@@ -135,13 +166,16 @@ const std::vector<Field<StackCocOptions>>& radius_fields() {
     static const std::vector<Field<O>> f = {
         {"radius.absolute", &O::absolute, 0, 1,
          "add the composite's own blur, measured at its edges, to the stack's relative radius"},
-        {"radius.floor_max", &O::floor_max, 0, 100, "the edges' floor counts up to this (px); past it, none"},
+        {"radius.floor_max", &O::floor_max, 0, 100,
+         "the edges' floor counts up to this (px); past it, none"},
         {"radius.floor_lo", &O::floor_lo, 0, 100, "a floor under this reads 0 ..."},
         {"radius.floor_hi", &O::floor_hi, 0, 100, "... ramping up to the floor itself here (px)"},
-        {"radius.fill_cells", &O::floor_fill_cells, 0, 1000, "empty floor cells take their neighbours' up to this far"},
+        {"radius.fill_cells", &O::floor_fill_cells, 0, 1000,
+         "empty floor cells take their neighbours' up to this far"},
         {"radius.gate_clear_px", &O::floor_gate_clear_px, 0, 1000,
          "the floor's gate reads views this far inside the layer's region (px)"},
-        {"radius.spectral", &O::spectral, 0, 1, "a layer blurred past what edges measure is read from tile spectra"},
+        {"radius.spectral", &O::spectral, 0, 1,
+         "a layer blurred past what edges measure is read from tile spectra"},
     };
     return f;
 }
@@ -161,11 +195,15 @@ std::string number_text(T v) {
 
 template <class T>
 std::string number_text_or_string(const T& v) {
-    if constexpr (std::is_same_v<T, std::string>) return v;
-    else return number_text(v);
+    if constexpr (std::is_same_v<T, std::string>)
+        return v;
+    else
+        return number_text(v);
 }
 
-[[noreturn]] std::string throw_bad(const std::string& msg) { throw Error(msg); }
+[[noreturn]] std::string throw_bad(const std::string& msg) {
+    throw Error(msg);
+}
 
 template <class S>
 SettingInfo info_of(const Field<S>& f) {
@@ -232,9 +270,12 @@ void apply_fields(const Settings& s, const std::vector<Field<S>>& fields, S& o) 
         std::visit(
             [&](auto m) {
                 using T = std::decay_t<decltype(o.*m)>;
-                if constexpr (std::is_same_v<T, std::string>) o.*m = v;
-                else if constexpr (std::is_same_v<T, bool>) o.*m = v == "true";
-                else o.*m = T(std::strtod(v.c_str(), nullptr));
+                if constexpr (std::is_same_v<T, std::string>)
+                    o.*m = v;
+                else if constexpr (std::is_same_v<T, bool>)
+                    o.*m = v == "true";
+                else
+                    o.*m = T(std::strtod(v.c_str(), nullptr));
             },
             f.member);
     }
@@ -302,8 +343,7 @@ void Settings::set(const std::string& name, const std::string& value) {
 
 void Settings::set_assignment(const std::string& a) {
     const size_t eq = a.find('=');
-    if (eq == std::string::npos || eq == 0)
-        throw Error("--set takes name=value (got '" + a + "')");
+    if (eq == std::string::npos || eq == 0) throw Error("--set takes name=value (got '" + a + "')");
     set(a.substr(0, eq), a.substr(eq + 1));
 }
 
@@ -312,10 +352,14 @@ void Settings::set_json(const nlohmann::json& obj, const std::string& where) {
     if (!obj.is_object()) throw Error(where + ": 'settings' must be an object of name: value");
     for (const auto& [name, v] : obj.items()) {
         std::string text;
-        if (v.is_string()) text = v.get<std::string>();
-        else if (v.is_boolean()) text = v.get<bool>() ? "true" : "false";
-        else if (v.is_number()) text = v.dump();
-        else throw Error(where + ": setting " + name + " must be a number, a bool or a string");
+        if (v.is_string())
+            text = v.get<std::string>();
+        else if (v.is_boolean())
+            text = v.get<bool>() ? "true" : "false";
+        else if (v.is_number())
+            text = v.dump();
+        else
+            throw Error(where + ": setting " + name + " must be a number, a bool or a string");
         try {
             set(name, text);
         } catch (const Error& e) {
@@ -333,8 +377,10 @@ nlohmann::json Settings::to_json() const {
         }
         char* end = nullptr;
         const double d = std::strtod(v.c_str(), &end);
-        if (!v.empty() && end == v.c_str() + v.size()) j[name] = d;
-        else j[name] = v;
+        if (!v.empty() && end == v.c_str() + v.size())
+            j[name] = d;
+        else
+            j[name] = v;
     }
     return j;
 }
@@ -346,11 +392,23 @@ std::string Settings::key(const std::string& prefix) const {
     return k;
 }
 
-void apply_settings(const Settings& s, FitOptions& o) { apply_fields(s, fit_fields(), o); }
-void apply_settings(const Settings& s, FitSetupOptions& o) { apply_fields(s, setup_fields(), o); }
-void apply_settings(const Settings& s, FastModelOptions& o) { apply_fields(s, fast_fields(), o); }
-void apply_settings(const Settings& s, PaperModelOptions& o) { apply_fields(s, paper_fields(), o); }
-void apply_settings(const Settings& s, PerframeOptions& o) { apply_fields(s, perframe_fields(), o); }
-void apply_settings(const Settings& s, StackCocOptions& o) { apply_fields(s, radius_fields(), o); }
+void apply_settings(const Settings& s, FitOptions& o) {
+    apply_fields(s, fit_fields(), o);
+}
+void apply_settings(const Settings& s, FitSetupOptions& o) {
+    apply_fields(s, setup_fields(), o);
+}
+void apply_settings(const Settings& s, FastModelOptions& o) {
+    apply_fields(s, fast_fields(), o);
+}
+void apply_settings(const Settings& s, PaperModelOptions& o) {
+    apply_fields(s, paper_fields(), o);
+}
+void apply_settings(const Settings& s, PerframeOptions& o) {
+    apply_fields(s, perframe_fields(), o);
+}
+void apply_settings(const Settings& s, StackCocOptions& o) {
+    apply_fields(s, radius_fields(), o);
+}
 
 }  // namespace refocus

@@ -22,10 +22,10 @@ struct StackCocOptions;
 
 // One setting as `refocus fit --list-settings` prints it.
 struct SettingInfo {
-    std::string name;     // group.field
-    std::string type;     // number | integer | bool | one of: a|b
-    std::string def;      // the default, as text
-    std::string range;    // "[lo, hi]" or the choices
+    std::string name;   // group.field
+    std::string type;   // number | integer | bool | one of: a|b
+    std::string def;    // the default, as text
+    std::string range;  // "[lo, hi]" or the choices
     std::string help;
 };
 
@@ -35,7 +35,7 @@ const std::vector<SettingInfo>& all_settings();
 std::string settings_table();
 
 class Settings {
-public:
+  public:
     // Validates `name` and `value` (type and range) and stores the value in canonical form.
     // Throws Error naming the setting and its valid range, or listing the valid names.
     void set(const std::string& name, const std::string& value);
@@ -53,7 +53,7 @@ public:
     // whose content those settings shape (empty when all are at their defaults).
     std::string key(const std::string& prefix) const;
 
-private:
+  private:
     std::map<std::string, std::string> m_values;
 };
 

@@ -35,7 +35,7 @@ bool is_image_ext(const std::string& ext) {
 
 // ---------------------------------------------------------------- video
 class VideoReader : public ClipReader {
-public:
+  public:
     VideoReader(const std::string& path, const ClipReadOptions& opts) : m_path(path) {
         reopen();
         m_info.path = path;
@@ -88,7 +88,7 @@ public:
         return out;
     }
 
-private:
+  private:
     void reopen() {
         m_cap.release();
         if (!m_cap.open(m_path, cv::CAP_FFMPEG) || !m_cap.isOpened())
@@ -136,7 +136,7 @@ void check_numbering(const std::string& path,
 }
 
 class SequenceReader : public ClipReader {
-public:
+  public:
     SequenceReader(const std::string& path, const ClipReadOptions& opts) : m_opts(opts) {
         m_info.path = path;
         m_info.kind = "sequence";
@@ -204,12 +204,12 @@ public:
                                                              : (t.size() == 1 ? "uint8" : "uint16");
                 m_info.source_linear = t.is_floating_point();
             } else if (spec.width != m_info.width || spec.height != m_info.height) {
-                throw Error(file_error(f,
-                                       "frame size " + std::to_string(spec.width) + "x" +
-                                           std::to_string(spec.height) + " differs from the first frame's " +
-                                           std::to_string(m_info.width) + "x" +
-                                           std::to_string(m_info.height),
-                                       i));
+                throw Error(file_error(
+                    f,
+                    "frame size " + std::to_string(spec.width) + "x" + std::to_string(spec.height) +
+                        " differs from the first frame's " + std::to_string(m_info.width) + "x" +
+                        std::to_string(m_info.height),
+                    i));
             }
             if (spec.nchannels != 1 && spec.nchannels != 3 && spec.nchannels != 4)
                 throw Error(file_error(f,
@@ -230,7 +230,7 @@ public:
         return to_rgb(r.image);
     }
 
-private:
+  private:
     ClipReadOptions m_opts;
 };
 
@@ -278,11 +278,16 @@ std::vector<Image> read_all_frames(const std::string& path, const ClipReadOption
 ClipFormat parse_clip_format(const std::string& name) {
     if (name == "mp4") return ClipFormat::Mp4;
     switch (parse_pixel_format(name)) {
-        case PixelFormat::Png8: return ClipFormat::Png8;
-        case PixelFormat::Png16: return ClipFormat::Png16;
-        case PixelFormat::Tiff16: return ClipFormat::Tiff16;
-        case PixelFormat::ExrHalf: return ClipFormat::ExrHalf;
-        case PixelFormat::ExrFloat: return ClipFormat::ExrFloat;
+        case PixelFormat::Png8:
+            return ClipFormat::Png8;
+        case PixelFormat::Png16:
+            return ClipFormat::Png16;
+        case PixelFormat::Tiff16:
+            return ClipFormat::Tiff16;
+        case PixelFormat::ExrHalf:
+            return ClipFormat::ExrHalf;
+        case PixelFormat::ExrFloat:
+            return ClipFormat::ExrFloat;
     }
     return ClipFormat::Png8;
 }
@@ -290,12 +295,18 @@ ClipFormat parse_clip_format(const std::string& name) {
 namespace {
 PixelFormat pixel_format_of(ClipFormat f) {
     switch (f) {
-        case ClipFormat::Png8: return PixelFormat::Png8;
-        case ClipFormat::Png16: return PixelFormat::Png16;
-        case ClipFormat::Tiff16: return PixelFormat::Tiff16;
-        case ClipFormat::ExrHalf: return PixelFormat::ExrHalf;
-        case ClipFormat::ExrFloat: return PixelFormat::ExrFloat;
-        case ClipFormat::Mp4: break;
+        case ClipFormat::Png8:
+            return PixelFormat::Png8;
+        case ClipFormat::Png16:
+            return PixelFormat::Png16;
+        case ClipFormat::Tiff16:
+            return PixelFormat::Tiff16;
+        case ClipFormat::ExrHalf:
+            return PixelFormat::ExrHalf;
+        case ClipFormat::ExrFloat:
+            return PixelFormat::ExrFloat;
+        case ClipFormat::Mp4:
+            break;
     }
     throw Error("mp4 is not an image format");
 }
@@ -399,10 +410,9 @@ void ClipWriter::write(const Image& frame) {
         if (!m_encoder) open_encoder(frame.width, frame.height);
         std::vector<unsigned char> rgb(frame.size());
         for (size_t i = 0; i < rgb.size(); ++i)
-            rgb[i] = m_opts.srgb_encode
-                         ? linear_to_srgb8(frame.pixels[i])
-                         : static_cast<unsigned char>(
-                               std::lround(std::clamp(frame.pixels[i], 0.0f, 1.0f) * 255.0f));
+            rgb[i] = m_opts.srgb_encode ? linear_to_srgb8(frame.pixels[i])
+                                        : static_cast<unsigned char>(std::lround(
+                                              std::clamp(frame.pixels[i], 0.0f, 1.0f) * 255.0f));
         if (!m_encoder->write_stdin(rgb.data(), rgb.size())) {
             const int status = m_encoder->wait();
             const std::string why = encoder_failure(*m_encoder, status);

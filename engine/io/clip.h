@@ -13,8 +13,8 @@
 namespace refocus {
 
 struct ClipInfo {
-    std::string path;                // as given
-    std::string kind;                // "video" or "sequence"
+    std::string path;  // as given
+    std::string kind;  // "video" or "sequence"
     int width = 0;
     int height = 0;
     int frames = 0;
@@ -27,7 +27,7 @@ struct ClipInfo {
 
 struct ClipReadOptions {
     NonFinitePolicy nonfinite = NonFinitePolicy::Reject;
-    double default_fps = 24.0;       // image sequences carry no rate
+    double default_fps = 24.0;  // image sequences carry no rate
 };
 
 // A video file by its extension. A file that exists is never read as a frame pattern,
@@ -38,7 +38,7 @@ bool is_video_path(const std::string& path);
 bool mp4_has_moov(const std::string& path);
 
 class ClipReader {
-public:
+  public:
     // Opens and validates the clip: size and frame count are known after this. A video is
     // decoded once here to count its frames (containers' counts are estimates); a sequence's
     // files are all listed and their headers checked for one size and a supported layout.
@@ -49,7 +49,7 @@ public:
     // Frame `index` in [0, frames) as linear RGB. Sequential reads are fastest.
     virtual Image read(int index) = 0;
 
-protected:
+  protected:
     ClipInfo m_info;
 };
 
@@ -74,7 +74,7 @@ struct ClipWriteOptions {
 // and renamed into place by finish(). A writer destroyed before finish() removes what it
 // wrote, so an output is complete or absent and a failed export keeps the previous one.
 class ClipWriter {
-public:
+  public:
     // `target` is the output folder for sequences, the .mp4 file for mp4.
     ClipWriter(const std::string& target, const std::string& name, ClipFormat format,
                const ClipWriteOptions& opts = {});
@@ -90,7 +90,7 @@ public:
     static std::string sequence_path(const std::string& dir, const std::string& name, int index,
                                      ClipFormat format);
 
-private:
+  private:
     void open_encoder(int w, int h);
     std::string m_target, m_name;
     ClipFormat m_format;

@@ -55,8 +55,10 @@ void clean_nonfinite(Image& img) {
     for (float v : img.pixels)
         if (std::isfinite(v)) maxv = std::max(maxv, v);
     for (float& v : img.pixels) {
-        if (std::isnan(v)) v = 0.0f;
-        else if (std::isinf(v)) v = v > 0 ? maxv : 0.0f;
+        if (std::isnan(v))
+            v = 0.0f;
+        else if (std::isinf(v))
+            v = v > 0 ? maxv : 0.0f;
     }
 }
 

@@ -36,7 +36,8 @@ ImageReadResult read_image_file(const std::string& path, bool decode_srgb,
     OIIO::ImageSpec config;
     config.attribute("oiio:UnassociatedAlpha", 1);
     auto in = OIIO::ImageInput::open(path, &config);
-    if (!in) throw Error(file_error(path, "cannot open image: " + oiio_error("unknown format"), frame));
+    if (!in)
+        throw Error(file_error(path, "cannot open image: " + oiio_error("unknown format"), frame));
     const OIIO::ImageSpec& spec = in->spec();
     const int nch = spec.nchannels;
     if (nch != 1 && nch != 3 && nch != 4)
@@ -52,7 +53,9 @@ ImageReadResult read_image_file(const std::string& path, bool decode_srgb,
     const OIIO::TypeDesc fmt = spec.format;
     const bool is_float = fmt.is_floating_point();
     r.format = is_float ? (fmt.size() == 2 ? "half" : "float")
-                        : (fmt.size() == 1 ? "uint8" : fmt.size() == 2 ? "uint16" : "uint32");
+                        : (fmt.size() == 1   ? "uint8"
+                           : fmt.size() == 2 ? "uint16"
+                                             : "uint32");
     // Some decoders (JPEG) fill a truncated file with grey and only leave an error behind.
     if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::FLOAT, r.image.data()) || in->has_error()) {
         std::string why = in->geterror();
@@ -81,13 +84,14 @@ ImageReadResult read_image_file(const std::string& path, bool decode_srgb,
     if (bad > 0) {
         if (nonfinite == NonFinitePolicy::Reject) {
             long px = first / nch;
-            throw Error(file_error(
-                path,
-                std::to_string(bad) + " NaN/Inf value(s), first at pixel (" +
-                    std::to_string(px % spec.width) + ", " + std::to_string(px / spec.width) +
-                    "); rejected (use --nonfinite clean to replace NaN/-Inf with 0 and +Inf with the "
-                    "largest finite value)",
-                frame));
+            throw Error(file_error(path,
+                                   std::to_string(bad) + " NaN/Inf value(s), first at pixel (" +
+                                       std::to_string(px % spec.width) + ", " +
+                                       std::to_string(px / spec.width) +
+                                       "); rejected (use --nonfinite clean to replace NaN/-Inf "
+                                       "with 0 and +Inf with the "
+                                       "largest finite value)",
+                                   frame));
         }
         clean_nonfinite(r.image);
     }
@@ -107,10 +111,13 @@ PixelFormat parse_pixel_format(const std::string& name) {
 const char* extension_of(PixelFormat f) {
     switch (f) {
         case PixelFormat::Png8:
-        case PixelFormat::Png16: return "png";
-        case PixelFormat::Tiff16: return "tiff";
+        case PixelFormat::Png16:
+            return "png";
+        case PixelFormat::Tiff16:
+            return "tiff";
         case PixelFormat::ExrHalf:
-        case PixelFormat::ExrFloat: return "exr";
+        case PixelFormat::ExrFloat:
+            return "exr";
     }
     return "bin";
 }
@@ -124,11 +131,19 @@ void write_image_file(const std::string& path, const Image& img, PixelFormat for
     const int nch = img.channels;
     OIIO::TypeDesc type;
     switch (format) {
-        case PixelFormat::Png8: type = OIIO::TypeDesc::UINT8; break;
+        case PixelFormat::Png8:
+            type = OIIO::TypeDesc::UINT8;
+            break;
         case PixelFormat::Png16:
-        case PixelFormat::Tiff16: type = OIIO::TypeDesc::UINT16; break;
-        case PixelFormat::ExrHalf: type = OIIO::TypeDesc::HALF; break;
-        case PixelFormat::ExrFloat: type = OIIO::TypeDesc::FLOAT; break;
+        case PixelFormat::Tiff16:
+            type = OIIO::TypeDesc::UINT16;
+            break;
+        case PixelFormat::ExrHalf:
+            type = OIIO::TypeDesc::HALF;
+            break;
+        case PixelFormat::ExrFloat:
+            type = OIIO::TypeDesc::FLOAT;
+            break;
     }
     OIIO::ImageSpec spec(img.width, img.height, nch, type);
     const bool is_float = format == PixelFormat::ExrHalf || format == PixelFormat::ExrFloat;
@@ -137,8 +152,9 @@ void write_image_file(const std::string& path, const Image& img, PixelFormat for
         for (size_t i = 0; i < buf.size(); ++i) {
             const bool alpha = nch == 4 && (i % 4) == 3;
             float v = buf[i];
-            buf[i] = (srgb_encode && !alpha) ? linear_to_srgb(v)
-                                             : (std::isfinite(v) ? std::clamp(v, 0.0f, 1.0f) : 0.0f);
+            buf[i] = (srgb_encode && !alpha)
+                         ? linear_to_srgb(v)
+                         : (std::isfinite(v) ? std::clamp(v, 0.0f, 1.0f) : 0.0f);
         }
         spec.attribute("oiio:ColorSpace", srgb_encode ? "sRGB" : "linear");
     } else {

@@ -9,9 +9,9 @@ namespace refocus {
 enum class NonFinitePolicy { Reject, Clean };
 
 struct ImageReadResult {
-    Image image;           // float, channels as stored (1..4)
-    bool linear = true;    // true: values are linear light as stored (float/half formats)
-    std::string format;    // "uint8", "uint16", "half", "float"
+    Image image;         // float, channels as stored (1..4)
+    bool linear = true;  // true: values are linear light as stored (float/half formats)
+    std::string format;  // "uint8", "uint16", "half", "float"
 };
 
 // Reads `path` as float. Integer-coded formats (8/16-bit PNG, JPEG, TIFF) are sRGB-encoded and
@@ -19,7 +19,8 @@ struct ImageReadResult {
 // NaN/Inf: Reject throws (naming the file, the count and the first pixel); Clean replaces them.
 // `frame` only labels messages.
 ImageReadResult read_image_file(const std::string& path, bool decode_srgb = true,
-                                NonFinitePolicy nonfinite = NonFinitePolicy::Reject, int frame = -1);
+                                NonFinitePolicy nonfinite = NonFinitePolicy::Reject,
+                                int frame = -1);
 
 // Storage of a written image. The sRGB-coded ones encode linear input; the float ones store it.
 enum class PixelFormat { Png8, Png16, Tiff16, ExrHalf, ExrFloat };

@@ -6,8 +6,8 @@ namespace refocus {
 
 torch::Tensor image_to_tensor(const Image& img) {
     if (img.empty()) throw Error("cannot convert an empty image to a tensor");
-    auto t = torch::from_blob(const_cast<float*>(img.data()),
-                              {img.height, img.width, img.channels}, torch::kFloat32);
+    auto t = torch::from_blob(const_cast<float*>(img.data()), {img.height, img.width, img.channels},
+                              torch::kFloat32);
     // clone(), not contiguous(): for one channel the permuted view is already contiguous, and
     // contiguous() would hand back a tensor aliasing img's memory (dangling once img is gone).
     return t.permute({2, 0, 1}).clone(at::MemoryFormat::Contiguous);
@@ -18,7 +18,8 @@ Image tensor_to_image(const torch::Tensor& t_in) {
     if (t.dim() == 2) t = t.unsqueeze(0);
     if (t.dim() != 3) throw Error("tensor_to_image needs [C,H,W] or [H,W]");
     t = t.permute({1, 2, 0}).contiguous();
-    Image img(static_cast<int>(t.size(1)), static_cast<int>(t.size(0)), static_cast<int>(t.size(2)));
+    Image img(static_cast<int>(t.size(1)), static_cast<int>(t.size(0)),
+              static_cast<int>(t.size(2)));
     std::memcpy(img.data(), t.data_ptr<float>(), img.size() * sizeof(float));
     return img;
 }

@@ -21,7 +21,9 @@ void check_same(const Image& a, const Image& b, const char* what) {
                     std::to_string(b.channels) + ")");
 }
 
-double peak_of(MetricSpace s) { return s == MetricSpace::Srgb8 ? 255.0 : 1.0; }
+double peak_of(MetricSpace s) {
+    return s == MetricSpace::Srgb8 ? 255.0 : 1.0;
+}
 
 // One channel as a double plane.
 std::vector<double> plane(const Image& img, int c) {
@@ -117,9 +119,8 @@ Image to_metric_space(const Image& linear, MetricSpace space) {
     Image out(linear.width, linear.height, linear.channels);
     for (size_t i = 0; i < out.size(); ++i) {
         float v = linear.pixels[i];
-        out.pixels[i] = space == MetricSpace::Srgb8
-                            ? static_cast<float>(linear_to_srgb8(v))
-                            : (std::isfinite(v) ? v : 0.0f);
+        out.pixels[i] = space == MetricSpace::Srgb8 ? static_cast<float>(linear_to_srgb8(v))
+                                                    : (std::isfinite(v) ? v : 0.0f);
     }
     return out;
 }
@@ -207,7 +208,8 @@ double tpsnr(const std::vector<Image>& pred, const std::vector<Image>& gt, Metri
         Image p1 = to_metric_space(pred[t], space), g1 = to_metric_space(gt[t], space);
         check_same(p1, p0, "tPSNR");
         for (size_t i = 0; i < p1.size(); ++i) {
-            double d = (double(p1.pixels[i]) - p0.pixels[i]) - (double(g1.pixels[i]) - g0.pixels[i]);
+            double d =
+                (double(p1.pixels[i]) - p0.pixels[i]) - (double(g1.pixels[i]) - g0.pixels[i]);
             s += d * d;
         }
         n += p1.size();
@@ -233,7 +235,8 @@ double mean_ssim(const std::vector<Image>& pred, const std::vector<Image>& gt, M
 
 std::vector<BandError> error_by_band(const std::vector<Image>& pred, const std::vector<Image>& gt,
                                      const std::vector<double>& edges, MetricSpace space) {
-    if (pred.size() != gt.size() || pred.empty()) throw Error("error_by_band: frame counts differ or are zero");
+    if (pred.size() != gt.size() || pred.empty())
+        throw Error("error_by_band: frame counts differ or are zero");
     if (edges.size() < 2 || edges.front() != 0.0 || !std::is_sorted(edges.begin(), edges.end()))
         throw Error("error_by_band: band edges must rise from 0");
     const size_t nb = edges.size() - 1;
@@ -241,7 +244,8 @@ std::vector<BandError> error_by_band(const std::vector<Image>& pred, const std::
     std::vector<double> cross(nb, 0.0);
     for (size_t i = 0; i < nb; ++i) out[i].lo = edges[i], out[i].hi = edges[i + 1];
     for (size_t t = 0; t < gt.size(); ++t) {
-        if (!pred[t].same_shape(gt[t])) throw Error("error_by_band: frame " + std::to_string(t) + " differs in size");
+        if (!pred[t].same_shape(gt[t]))
+            throw Error("error_by_band: frame " + std::to_string(t) + " differs in size");
         const Image p = to_metric_space(pred[t], space), g = to_metric_space(gt[t], space);
         const int H = g.height, W = g.width;
         std::vector<double> wy(H), wx(W);  // Hann
@@ -267,11 +271,13 @@ std::vector<BandError> error_by_band(const std::vector<Image>& pred, const std::
                 for (int x = 0; x < W; ++x) {
                     const double fx = double(x <= W / 2 ? x : x - W) / W;
                     const double f = std::sqrt(fx * fx + fy * fy);
-                    const size_t b = std::upper_bound(edges.begin(), edges.end(), f) - edges.begin();
+                    const size_t b =
+                        std::upper_bound(edges.begin(), edges.end(), f) - edges.begin();
                     if (b == 0 || b > nb) continue;  // beyond the last edge
                     const auto a = FP.at<cv::Vec2d>(y, x), e = FG.at<cv::Vec2d>(y, x);
                     out[b - 1].gt_power += e[0] * e[0] + e[1] * e[1];
-                    out[b - 1].err_power += (a[0] - e[0]) * (a[0] - e[0]) + (a[1] - e[1]) * (a[1] - e[1]);
+                    out[b - 1].err_power +=
+                        (a[0] - e[0]) * (a[0] - e[0]) + (a[1] - e[1]) * (a[1] - e[1]);
                     cross[b - 1] += a[0] * e[0] + a[1] * e[1];
                 }
             }

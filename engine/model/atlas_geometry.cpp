@@ -51,7 +51,8 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
     const torch::Tensor &flow_fwd = d.flow_fwd, &flow_valid = d.flow_valid;
     auto m = d.mask.squeeze(1);  // [T,H,W]
     const int64_t T = m.size(0);
-    auto ys = torch::arange(m.size(1), torch::kFloat32), xs = torch::arange(m.size(2), torch::kFloat32);
+    auto ys = torch::arange(m.size(1), torch::kFloat32),
+         xs = torch::arange(m.size(2), torch::kFloat32);
     auto grid = torch::meshgrid({ys, xs}, "ij");
     auto mass = m.sum({1, 2}).clamp_min(1e-6);
     auto cx = (m * grid[1]).sum({1, 2}) / mass, cy = (m * grid[0]).sum({1, 2}) / mass;
@@ -65,7 +66,8 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
     vx.assign(T, 0.0);
     vy.assign(T, 0.0);
     if (scale_out) scale_out->assign(T, 1.0);
-    const bool have_flow = flow_fwd.defined() && flow_fwd.size(0) == T - 1 && T > 1 && !d.legacy_subject_track;
+    const bool have_flow =
+        flow_fwd.defined() && flow_fwd.size(0) == T - 1 && T > 1 && !d.legacy_subject_track;
     if (!have_flow) {
         for (int64_t t = 0; t < T; ++t) {
             double ax = 0, ay = 0;
@@ -84,7 +86,8 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
     // showing through a blurred subject's edge pulls it toward the wall's motion
     // (docs/method.md, Preparation).
     auto core = (-F::max_pool2d(-(m > 0.5).to(torch::kFloat32).unsqueeze(1),
-                                F::MaxPool2dFuncOptions(9).stride(1).padding(4))).squeeze(1) > 0.5;
+                                F::MaxPool2dFuncOptions(9).stride(1).padding(4)))
+                    .squeeze(1) > 0.5;
     std::vector<double> sx(T, 0.0), sy(T, 0.0);
     // With the scale (a subject walking toward or away from the camera): frame t's point p is
     // at v_{t+1} + s_t (p − v_t) in frame t + 1, s_t the least-squares expansion of the flow
@@ -99,12 +102,17 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
             auto fx = flow_fwd[t][0].masked_select(sel), fy = flow_fwd[t][1].masked_select(sel);
             dx = fx.median().item<double>();
             dy = fy.median().item<double>();
-            auto px = grid[1].masked_select(sel).to(torch::kFloat64), py = grid[0].masked_select(sel).to(torch::kFloat64);
+            auto px = grid[1].masked_select(sel).to(torch::kFloat64),
+                 py = grid[0].masked_select(sel).to(torch::kFloat64);
             ccx = px.mean().item<double>(), ccy = py.mean().item<double>();
             auto qx = px - ccx, qy = py - ccy;
             const double den = (qx * qx + qy * qy).sum().item<double>();
             if (den > 1e-6)
-                st = 1.0 + ((qx * (fx.to(torch::kFloat64) - dx)) + (qy * (fy.to(torch::kFloat64) - dy))).sum().item<double>() / den;
+                st = 1.0 +
+                     ((qx * (fx.to(torch::kFloat64) - dx)) + (qy * (fy.to(torch::kFloat64) - dy)))
+                             .sum()
+                             .item<double>() /
+                         den;
             st = std::clamp(st, 0.8, 1.25);
             // The flow at the core's centre: the median once the expansion is taken out.
             zdx = (fx.to(torch::kFloat64) - (st - 1.0) * qx).median().item<double>();
@@ -132,7 +140,8 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
     // The scale is used where the subject's size changes by more than 30% over the clip: noise
     // in each pair's expansion chains, drifting by up to ~11% on a subject that keeps its depth
     // (docs/method.md, Preparation).
-    const double smax = *std::max_element(zs.begin(), zs.end()), smin = *std::min_element(zs.begin(), zs.end());
+    const double smax = *std::max_element(zs.begin(), zs.end()),
+                 smin = *std::min_element(zs.begin(), zs.end());
     if (scale_out && smax > 1.3 * smin) {
         for (int64_t t = 0; t < T; ++t) {
             vx[t] = zx[t], vy[t] = zy[t];
@@ -157,7 +166,8 @@ torch::Tensor subject_to_track(double vx, double vy, double scale) {
 }
 
 AtlasBox subject_box(const torch::Tensor& mask, const std::vector<double>& vx,
-                     const std::vector<double>& vy, double margin, const std::vector<double>* scale) {
+                     const std::vector<double>& vy, double margin,
+                     const std::vector<double>* scale) {
     auto m = mask.squeeze(1);
     const int64_t T = m.size(0), H = m.size(1), W = m.size(2);
     double fx0 = 1e30, fy0 = 1e30, fx1 = -1e30, fy1 = -1e30;
@@ -194,7 +204,10 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
     auto pts = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({height * width})}, 0);
     auto acc = torch::zeros({C, height, width}), wsum = torch::zeros({1, height, width});
     const auto scale = torch::tensor({2.0f / W, 2.0f / H});
-    auto opts = F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kZeros).align_corners(false);
+    auto opts = F::GridSampleFuncOptions()
+                    .mode(torch::kBilinear)
+                    .padding_mode(torch::kZeros)
+                    .align_corners(false);
     auto ones = torch::ones({1, 1, H, W});
     for (int64_t t = 0; t < T; ++t) {
         auto inv = torch::inverse(to_atlas[t].to(torch::kFloat64)).to(torch::kFloat32);
@@ -242,8 +255,10 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
             // How often the other frames' masks hold this part's pixels at the same place on the
             // subject (moved along the track); a pixel that leaves a frame does not count there.
             int64_t hits = 0, seen = 0;
-            const int x0 = stats.at<int>(k, cv::CC_STAT_LEFT), y0 = stats.at<int>(k, cv::CC_STAT_TOP);
-            const int w = stats.at<int>(k, cv::CC_STAT_WIDTH), h = stats.at<int>(k, cv::CC_STAT_HEIGHT);
+            const int x0 = stats.at<int>(k, cv::CC_STAT_LEFT),
+                      y0 = stats.at<int>(k, cv::CC_STAT_TOP);
+            const int w = stats.at<int>(k, cv::CC_STAT_WIDTH),
+                      h = stats.at<int>(k, cv::CC_STAT_HEIGHT);
             for (int y = y0; y < y0 + h; y += 2)
                 for (int x = x0; x < x0 + w; x += 2) {
                     if (labels.at<int>(y, x) != k) continue;
@@ -259,8 +274,8 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
             const double pers = seen ? double(hits) / double(seen) : 1.0;
             const int a = stats.at<int>(k, cv::CC_STAT_AREA);
             if (debug)
-                std::fprintf(stderr, "mask %lld part %d: %d px at (%d,%d) persistence %.2f\n", (long long)t, k, a,
-                             x0, y0, pers);
+                std::fprintf(stderr, "mask %lld part %d: %d px at (%d,%d) persistence %.2f\n",
+                             (long long)t, k, a, x0, y0, pers);
             if (pers < min_persistence) {
                 ++dropped;
                 continue;
@@ -295,17 +310,24 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
             int64_t u = good.front();
             for (int64_t k : good)
                 if (std::abs(k - t) < std::abs(u - t)) u = k;
-            // Frame t's pixel p is frame u's (p − c_t)·s_u/s_t + c_u (grid_sample, align_corners false).
+            // Frame t's pixel p is frame u's (p − c_t)·s_u/s_t + c_u (grid_sample, align_corners
+            // false).
             const double f = sc[u] / sc[t];
             auto px = (g[1] - vx[t]) * f + vx[u], py = (g[0] - vy[t]) * f + vy[u];
-            auto grid = torch::stack({(px + 0.5) * (2.0 / W) - 1.0, (py + 0.5) * (2.0 / H) - 1.0}, -1)
-                            .to(torch::kFloat32)
-                            .unsqueeze(0);
+            auto grid =
+                torch::stack({(px + 0.5) * (2.0 / W) - 1.0, (py + 0.5) * (2.0 / H) - 1.0}, -1)
+                    .to(torch::kFloat32)
+                    .unsqueeze(0);
             auto moved = F::grid_sample(kept[u].unsqueeze(0), grid,
-                                        F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(torch::kZeros).align_corners(false))[0];
+                                        F::GridSampleFuncOptions()
+                                            .mode(torch::kBilinear)
+                                            .padding_mode(torch::kZeros)
+                                            .align_corners(false))[0];
             const double moved_area = (moved > 0.5).sum().item<double>();
             if (debug)
-                std::fprintf(stderr, "mask %lld: %.0f px (median %.0f at its size), frame %lld's moved onto it %.0f px\n",
+                std::fprintf(stderr,
+                             "mask %lld: %.0f px (median %.0f at its size), frame %lld's moved "
+                             "onto it %.0f px\n",
                              (long long)t, area[t], med * sc[t] * sc[t], (long long)u, moved_area);
             if (moved_area < 2.0 * area[t] || moved_area < 16) continue;
             kept[t] = moved;
@@ -314,10 +336,11 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
     }
     d.mask = torch::stack(kept).contiguous();
     char line[240];
-    std::snprintf(line, sizeof line,
-                  "masks: %d part(s) that the other frames do not hold on the subject dropped, %d frame(s) "
-                  "that lost the subject given their neighbour's mask along its track",
-                  dropped, filled);
+    std::snprintf(
+        line, sizeof line,
+        "masks: %d part(s) that the other frames do not hold on the subject dropped, %d frame(s) "
+        "that lost the subject given their neighbour's mask along its track",
+        dropped, filled);
     return line;
 }
 

@@ -13,7 +13,8 @@ void FitModel::load_state(const std::map<std::string, torch::Tensor>& s) {
         if (it == s.end()) throw Error("checkpoint lacks tensor '" + name + "'");
         if (!it->second.sizes().equals(t.sizes()))
             throw Error("checkpoint tensor '" + name + "' has shape " +
-                        c10::str(it->second.sizes()) + ", the model expects " + c10::str(t.sizes()));
+                        c10::str(it->second.sizes()) + ", the model expects " +
+                        c10::str(t.sizes()));
         t.copy_(it->second);
     }
 }

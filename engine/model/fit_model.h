@@ -19,18 +19,18 @@ namespace refocus {
 // Everything the fit knows about the clip. Tensors are float32 on the CPU.
 struct FitData {
     int frames = 0, height = 0, width = 0;
-    torch::Tensor input;      // [T,3,H,W] linear light
-    torch::Tensor radius;     // [T,H,W] circle-of-confusion radius, px, of the visible surface
+    torch::Tensor input;   // [T,3,H,W] linear light
+    torch::Tensor radius;  // [T,H,W] circle-of-confusion radius, px, of the visible surface
     // Each layer's own radius with two layers (split_radius_by_layer, stack_coc.h): the subject's
     // beyond its silhouette, the wall's behind the subject. Undefined: `radius` for both.
     torch::Tensor radius_fg, radius_bg;  // [T,H,W]
     // The lens blur layer's kernel: the one the radii are measured in (the focal-stack estimate
     // matches blurs of this kernel; a given map is converted to it) and the reblur uses.
     LensBlurParams blur;
-    torch::Tensor mask;       // [T,1,H,W] foreground in [0,1]; undefined: one layer
-    torch::Tensor to_ref;     // [T,3,3] float64 homography frame t → reference frame
-    torch::Tensor flow_fwd;   // [T-1,2,H,W] flow t → t+1, px (prepare/flow.h); may be undefined
-    torch::Tensor flow_valid; // [T-1,1,H,W] 1 where the flow is forward-backward consistent
+    torch::Tensor mask;        // [T,1,H,W] foreground in [0,1]; undefined: one layer
+    torch::Tensor to_ref;      // [T,3,3] float64 homography frame t → reference frame
+    torch::Tensor flow_fwd;    // [T-1,2,H,W] flow t → t+1, px (prepare/flow.h); may be undefined
+    torch::Tensor flow_valid;  // [T-1,1,H,W] 1 where the flow is forward-backward consistent
     bool static_camera = true;
     bool has_subject = false;
     // Share of the wall (one layer: the frame) whose estimated radius holds over the clip: focus
@@ -56,12 +56,12 @@ struct FitData {
 
 // One rendered batch of frames. All [B,...].
 struct Layers {
-    torch::Tensor sharp;   // [B,3,H,W]  α·F + (1−α)·B   (paper eq. 1)
-    torch::Tensor bg;      // [B,3,H,W]  A_b(M_b(p))
-    torch::Tensor fg;      // [B,3,H,W]  A_f(M_f(p)), undefined with one layer
-    torch::Tensor alpha;   // [B,1,H,W]  undefined with one layer
-    torch::Tensor uv_bg;   // [B,H,W,2]  atlas coordinates in [-1,1] (grid_sample convention)
-    torch::Tensor uv_fg;   // [B,H,W,2]  undefined with one layer
+    torch::Tensor sharp;  // [B,3,H,W]  α·F + (1−α)·B   (paper eq. 1)
+    torch::Tensor bg;     // [B,3,H,W]  A_b(M_b(p))
+    torch::Tensor fg;     // [B,3,H,W]  A_f(M_f(p)), undefined with one layer
+    torch::Tensor alpha;  // [B,1,H,W]  undefined with one layer
+    torch::Tensor uv_bg;  // [B,H,W,2]  atlas coordinates in [-1,1] (grid_sample convention)
+    torch::Tensor uv_fg;  // [B,H,W,2]  undefined with one layer
 };
 
 using LossTerms = std::map<std::string, double>;
@@ -72,7 +72,7 @@ struct ParamGroup {
 };
 
 class FitModel {
-public:
+  public:
     virtual ~FitModel() = default;
     std::vector<std::string> notes;  // what the model decided at construction, for the log
     virtual std::string preset() const = 0;

@@ -60,7 +60,9 @@ std::vector<Tile> make_tiles(const T* rad, int H, int W, double rmin) {
     return tiles;
 }
 
-int num_threads() { return std::max(1, at::get_num_threads()); }
+int num_threads() {
+    return std::max(1, at::get_num_threads());
+}
 
 // ---- forward: scatter ----
 // CC is the channel count when known at compile time (1 or 3), 0 for any.
@@ -161,8 +163,8 @@ void forward_hwc(const T* img, const T* rad, T* out, int C, int H, int W,
 // ---- backward: gather ----
 // grad_out, img in HWC; writes gimg (HWC, if non-null) and grad (H·W, if non-null).
 template <typename T, int CC>
-void backward_hwc(const T* gout, const T* img, const T* rad, T* gimg, T* grad, int C, int H,
-                  int W, const LensBlurParams& params) {
+void backward_hwc(const T* gout, const T* img, const T* rad, T* gimg, T* grad, int C, int H, int W,
+                  const LensBlurParams& params) {
     const int nc = CC > 0 ? CC : C;
     const std::vector<Tile> tiles = make_tiles(rad, H, W, params.min_radius);
     const int nt = std::min<int>(num_threads(), static_cast<int>(tiles.size()));
@@ -291,9 +293,12 @@ void backward_hwc(const T* gout, const T* img, const T* rad, T* gimg, T* grad, i
 
 template <typename T, typename F0, typename F1, typename F3>
 void dispatch_channels(int C, F0&& any, F1&& one, F3&& three) {
-    if (C == 3) three();
-    else if (C == 1) one();
-    else any();
+    if (C == 3)
+        three();
+    else if (C == 1)
+        one();
+    else
+        any();
 }
 
 // ---- validation ----
@@ -344,8 +349,7 @@ void check_inputs(const torch::Tensor& image, const torch::Tensor& radius, const
     auto st = image.scalar_type();
     if (st != torch::kFloat && st != torch::kDouble)
         throw Error("lens_blur: image must be float32 or float64");
-    if (radius.scalar_type() != st)
-        throw Error("lens_blur: radius must have the image's dtype");
+    if (radius.scalar_type() != st) throw Error("lens_blur: radius must have the image's dtype");
     if (image.size(0) < 1 || image.size(1) < 1 || image.size(2) < 1)
         throw Error("lens_blur: empty image");
 }
@@ -360,8 +364,12 @@ void check_values(const torch::Tensor& image, const torch::Tensor& radius, const
     }
 }
 
-torch::Tensor to_hwc(const torch::Tensor& chw) { return chw.permute({1, 2, 0}).contiguous(); }
-torch::Tensor to_chw(const torch::Tensor& hwc) { return hwc.permute({2, 0, 1}).contiguous(); }
+torch::Tensor to_hwc(const torch::Tensor& chw) {
+    return chw.permute({1, 2, 0}).contiguous();
+}
+torch::Tensor to_chw(const torch::Tensor& hwc) {
+    return hwc.permute({2, 0, 1}).contiguous();
+}
 
 torch::Tensor run_forward(const torch::Tensor& image, const torch::Tensor& radius,
                           const LensBlurParams& params) {
@@ -417,7 +425,7 @@ LensBlurParams unpack(torch::autograd::AutogradContext* ctx) {
 }
 
 class LensBlurFunction : public torch::autograd::Function<LensBlurFunction> {
-public:
+  public:
     static torch::Tensor forward(torch::autograd::AutogradContext* ctx, const torch::Tensor& image,
                                  const torch::Tensor& radius, int64_t kernel, double beta,
                                  double kappa, double min_radius) {
@@ -442,12 +450,14 @@ public:
         const bool want_image = ctx->needs_input_grad(0);
         const bool want_radius = ctx->needs_input_grad(1);
         if (!g.defined() || (!want_image && !want_radius))
-            return {torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor(),
-                    torch::Tensor(), torch::Tensor()};
+            return {torch::Tensor(), torch::Tensor(), torch::Tensor(),
+                    torch::Tensor(), torch::Tensor(), torch::Tensor()};
         g = g.to(saved[0].scalar_type());
         check_inputs(g, saved[1], "grad_out");
-        if (g.scalar_type() == torch::kFloat) check_finite<float>(g.contiguous(), "grad_out", false);
-        else check_finite<double>(g.contiguous(), "grad_out", false);
+        if (g.scalar_type() == torch::kFloat)
+            check_finite<float>(g.contiguous(), "grad_out", false);
+        else
+            check_finite<double>(g.contiguous(), "grad_out", false);
         auto [gi, gr] = run_backward(g, saved[0], saved[1], p, want_image, want_radius);
         return {gi, gr, torch::Tensor(), torch::Tensor(), torch::Tensor(), torch::Tensor()};
     }
@@ -459,9 +469,8 @@ torch::Tensor lens_blur(const torch::Tensor& image, const torch::Tensor& radius,
                         const LensBlurParams& params) {
     check_lens_blur_params(params);
     if (!image.defined() || !radius.defined()) throw Error("lens_blur: undefined tensor");
-    torch::Tensor rad = radius.scalar_type() == image.scalar_type()
-                            ? radius
-                            : radius.to(image.scalar_type());
+    torch::Tensor rad =
+        radius.scalar_type() == image.scalar_type() ? radius : radius.to(image.scalar_type());
     check_inputs(image, rad, "image");
     {
         torch::NoGradGuard ng;

@@ -16,9 +16,9 @@ enum class BlurKernel {
 
 struct LensBlurParams {
     BlurKernel kernel = BlurKernel::Disk;
-    double beta = 2.0;          // disk fall-off; must be > 1/e
-    double kappa = 1.2;         // Gaussian σ = κ·r
-    double min_radius = 0.25;   // below this a pixel costs one tap (identity)
+    double beta = 2.0;         // disk fall-off; must be > 1/e
+    double kappa = 1.2;        // Gaussian σ = κ·r
+    double min_radius = 0.25;  // below this a pixel costs one tap (identity)
 };
 
 // image [C,H,W] (float or double, linear light), radius [H,W] ≥ 0 in px → [C,H,W].

@@ -43,9 +43,12 @@ void check_lens_blur_params(const LensBlurParams& p) {
 double lens_blur_support(double r, const LensBlurParams& p) {
     if (!(r > p.min_radius)) return 0;
     switch (p.kernel) {
-        case BlurKernel::Disk: return r + disk_tail(p.beta);
-        case BlurKernel::Pillbox: return r + 0.5;
-        case BlurKernel::Gaussian: return kGaussianTail * p.kappa * r;
+        case BlurKernel::Disk:
+            return r + disk_tail(p.beta);
+        case BlurKernel::Pillbox:
+            return r + 0.5;
+        case BlurKernel::Gaussian:
+            return kGaussianTail * p.kappa * r;
     }
     return 0;
 }

@@ -11,7 +11,9 @@
 
 namespace refocus::lens_blur_detail {
 
-inline double disk_tail(double beta) { return std::max(kDiskTail / beta, kDiskTailMin); }
+inline double disk_tail(double beta) {
+    return std::max(kDiskTail / beta, kDiskTailMin);
+}
 
 // Smoothstep blend s(r) and ds/dr (header: "Small radii").
 inline void blend(double r, double rmin, double& s, double& ds) {
@@ -30,7 +32,7 @@ inline void blend(double r, double rmin, double& s, double& ds) {
 
 // Evaluates k̃(ρ; r) and ∂k̃/∂r for one kernel at one radius.
 class KernelEval {
-public:
+  public:
     explicit KernelEval(const LensBlurParams& p) : m_p(p) {
         m_tail = disk_tail(p.beta);
         // k(−t_e) = E/(E + t_e), E = e^{−β t_e} (underflows harmlessly to 0 for large β).
@@ -102,7 +104,7 @@ public:
         k = dk = 0;
     }
 
-private:
+  private:
     LensBlurParams m_p;
     double m_tail = 0, m_disk_edge = 0, m_gauss_edge = 0;
     double m_r = 0, m_support = 0, m_inv_2s2 = 0, m_inv_s2r = 0;
@@ -160,7 +162,7 @@ struct KernelTable {
         }
     }
 
-private:
+  private:
     inline void set(int ay, int ax, double kv, double dkv, bool with_dk) {
         size_t base = static_cast<size_t>(ay) * stride + R * Rep;
         for (int c = 0; c < Rep; ++c) {

@@ -17,7 +17,9 @@ namespace {
 
 using LD = long double;
 
-LD disk_tail(const LensBlurParams& p) { return std::max<LD>(kDiskTail / p.beta, kDiskTailMin); }
+LD disk_tail(const LensBlurParams& p) {
+    return std::max<LD>(kDiskTail / p.beta, kDiskTailMin);
+}
 
 // Paper eq. 2 exactly as printed, k = e^{βd} / (e^{βd} − d). In long double e^{βd} only
 // overflows for βd > 11356, far beyond what the tests use.
@@ -40,7 +42,8 @@ LD ref_kernel(const LensBlurParams& p, LD r, LD rho) {
             if (d <= -te) return 0;
             return paper_disk(d, p.beta) - paper_disk(-te, p.beta);
         }
-        case BlurKernel::Pillbox: return std::clamp<LD>(r + 0.5L - rho, 0, 1);
+        case BlurKernel::Pillbox:
+            return std::clamp<LD>(r + 0.5L - rho, 0, 1);
         case BlurKernel::Gaussian: {
             LD sigma = p.kappa * r;
             if (rho >= kGaussianTail * sigma) return 0;
@@ -68,7 +71,9 @@ torch::Tensor lens_blur_reference(const torch::Tensor& image, const torch::Tenso
     auto I = img.accessor<double, 3>();
     auto Rd = rad.accessor<double, 2>();
     std::vector<LD> out(static_cast<size_t>(C) * H * W, 0);
-    auto at = [&](int c, int y, int x) -> LD& { return out[(static_cast<size_t>(c) * H + y) * W + x]; };
+    auto at = [&](int c, int y, int x) -> LD& {
+        return out[(static_cast<size_t>(c) * H + y) * W + x];
+    };
     struct Tap {
         int y, x;
         LD k;
@@ -151,15 +156,17 @@ torch::Tensor lens_blur_tensor_ops(const torch::Tensor& image, const torch::Tens
                 k = (torch::where(d >= 0, kp, kn) - disk_edge) * (d > -te).to(k_dtype);
                 break;
             }
-            case BlurKernel::Pillbox: k = (rr + 0.5 - rho).clamp(0, 1); break;
+            case BlurKernel::Pillbox:
+                k = (rr + 0.5 - rho).clamp(0, 1);
+                break;
             case BlurKernel::Gaussian: {
                 torch::Tensor sigma = params.kappa * rr.clamp_min(1e-6);
                 k = (torch::exp(-(rho * rho) / (2 * sigma * sigma)) - gauss_edge).clamp_min(0);
                 break;
             }
         }
-        torch::Tensor inside = ((ys + dy) >= 0) & ((ys + dy) < H) & ((xs + dxl) >= 0) &
-                               ((xs + dxl) < W);
+        torch::Tensor inside =
+            ((ys + dy) >= 0) & ((ys + dy) < H) & ((xs + dxl) >= 0) & ((xs + dxl) < W);
         return k * inside.to(image.scalar_type());
     };
 
@@ -177,10 +184,9 @@ torch::Tensor lens_blur_tensor_ops(const torch::Tensor& image, const torch::Tens
         torch::Tensor w = rows[dy + R] * a;                     // [K1,H,W]
         torch::Tensor x = image.unsqueeze(1) * w.unsqueeze(0);  // [C,K1,H,W]
         // fold sums each source pixel's row of K1 taps into columns px−R..px+R.
-        torch::Tensor row_out =
-            F::fold(x.reshape({1, C * K1, H * W}),
-                    F::FoldFuncOptions({H, W}, {1, K1}).padding({0, R}))
-                .squeeze(0);  // [C,H,W], row i = source row i
+        torch::Tensor row_out = F::fold(x.reshape({1, C * K1, H * W}),
+                                        F::FoldFuncOptions({H, W}, {1, K1}).padding({0, R}))
+                                    .squeeze(0);  // [C,H,W], row i = source row i
         torch::Tensor part = row_out.narrow(1, std::max(0, -dy), H - std::abs(dy));
         out = out + torch::constant_pad_nd(part, {0, 0, std::max(0, dy), std::max(0, -dy)});
     }

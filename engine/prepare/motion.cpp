@@ -84,7 +84,8 @@ cv::Mat affine_to_homography(const cv::Mat& A) {  // 2x3 → 3x3 (CV_64F)
 }
 
 // Mean reprojection distance of src under H against dst (px).
-double mean_residual(const cv::Mat& H, const std::vector<cv::Point2f>& src, const std::vector<cv::Point2f>& dst) {
+double mean_residual(const cv::Mat& H, const std::vector<cv::Point2f>& src,
+                     const std::vector<cv::Point2f>& dst) {
     const cv::Matx33d a(H);
     double sum = 0;
     for (size_t i = 0; i < src.size(); ++i) {
@@ -159,7 +160,8 @@ int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions
         std::vector<unsigned char> inl_h;
         cv::Mat Hh = cv::findHomography(rsrc, rdst, cv::RANSAC, rpx, inl_h, 4000, 0.999);
         const int nh = int(std::count(inl_h.begin(), inl_h.end(), 1));
-        if (!Hh.empty() && nh >= 4 * o.min_inliers && nh > 1.25 * nr && plausible(Hh, g0.cols, g0.rows)) {
+        if (!Hh.empty() && nh >= 4 * o.min_inliers && nh > 1.25 * nr &&
+            plausible(Hh, g0.cols, g0.rows)) {
             std::vector<cv::Point2f> hsrc, hdst;
             for (size_t i = 0; i < src.size(); ++i)
                 if (mean_residual(Hh, {src[i]}, {dst[i]}) < rpx) {
@@ -174,8 +176,10 @@ int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions
             // Every track that agrees with the ring's motion, over the whole frame.
             std::vector<cv::Point2f> asrc, adst;
             for (size_t i = 0; i < src.size(); ++i) {
-                const cv::Point2d q(A.at<double>(0, 0) * src[i].x + A.at<double>(0, 1) * src[i].y + A.at<double>(0, 2),
-                                    A.at<double>(1, 0) * src[i].x + A.at<double>(1, 1) * src[i].y + A.at<double>(1, 2));
+                const cv::Point2d q(A.at<double>(0, 0) * src[i].x + A.at<double>(0, 1) * src[i].y +
+                                        A.at<double>(0, 2),
+                                    A.at<double>(1, 0) * src[i].x + A.at<double>(1, 1) * src[i].y +
+                                        A.at<double>(1, 2));
                 if (std::hypot(q.x - dst[i].x, q.y - dst[i].y) < rpx) {
                     asrc.push_back(src[i]);
                     adst.push_back(dst[i]);
@@ -235,7 +239,9 @@ int pair_from_flow(const Image& bwd, const Image& bwd_valid, const MotionOptions
 // smooth over a few frames, and a weak pair's tracks are biased by the change of blur.
 void smooth_weak_pairs(CameraMotion& cm, const MotionOptions& o, int w, int h) {
     const int m = int(cm.pair.size());
-    auto weak = [&](int i) { return cm.pair_source[i] == "features" && cm.pair_inliers[i] < o.min_affine_tracks; };
+    auto weak = [&](int i) {
+        return cm.pair_source[i] == "features" && cm.pair_inliers[i] < o.min_affine_tracks;
+    };
     auto centre_shift = [&](int i, double& dx, double& dy) {
         double x, y;
         cm.pair[i].apply(0.5 * (w - 1), 0.5 * (h - 1), x, y);
@@ -248,9 +254,15 @@ void smooth_weak_pairs(CameraMotion& cm, const MotionOptions& o, int w, int h) {
         if (!weak(i)) continue;
         int a = -1, b = -1;
         for (int k = i - 1; k >= std::max(0, i - reach); --k)
-            if (!weak(k) && cm.pair_source[k] == "features") { a = k; break; }
+            if (!weak(k) && cm.pair_source[k] == "features") {
+                a = k;
+                break;
+            }
         for (int k = i + 1; k <= std::min(m - 1, i + reach); ++k)
-            if (!weak(k) && cm.pair_source[k] == "features") { b = k; break; }
+            if (!weak(k) && cm.pair_source[k] == "features") {
+                b = k;
+                break;
+            }
         if (a < 0 && b < 0) continue;
         double ax = 0, ay = 0, bx = 0, by = 0, tx, ty;
         if (a >= 0) centre_shift(a, ax, ay);

@@ -31,7 +31,7 @@ struct MotionOptions {
     int reference = 0;       // frame the homographies map to
     int max_features = 600;  // Shi-Tomasi corners per frame (spread over the grid below)
     int feature_grid_x = 8, feature_grid_y = 6;  // corners are found per cell of this grid
-    double feature_quality_cell = 0.05;  // relative to the cell's best corner
+    double feature_quality_cell = 0.05;          // relative to the cell's best corner
     double feature_min_distance = 4.0;
     double track_fb_max_px = 0.5;  // LK forward-backward disagreement allowed
     double ransac_px = 1.0;        // RANSAC reprojection threshold

@@ -38,8 +38,7 @@ const json& require(const json& j, const std::string& label, const std::string& 
                     json::value_t type, const std::string& path) {
     if (!j.contains(key)) field_error(label, path, "is missing");
     const json& v = j.at(key);
-    bool ok = v.type() == type ||
-              (type == json::value_t::number_float && v.is_number()) ||
+    bool ok = v.type() == type || (type == json::value_t::number_float && v.is_number()) ||
               (type == json::value_t::number_integer && v.is_number_integer());
     if (!ok)
         field_error(label, path,
@@ -105,15 +104,17 @@ void validate_fit_section(Project& p, const std::string& label) {
 
 }  // namespace
 
-fs::path Project::frame_path(int index) const { return dir / format_pattern(frame_pattern, index); }
+fs::path Project::frame_path(int index) const {
+    return dir / format_pattern(frame_pattern, index);
+}
 
 Image Project::read_frame(int index) const {
     if (index < 0 || index >= frames)
-        throw Error(file_error(project_file().string(), "frame " + std::to_string(index) +
-                                                            " out of range 0.." +
-                                                            std::to_string(frames - 1)));
-    ImageReadResult r = read_image_file(frame_path(index).string(), false,
-                                        NonFinitePolicy::Reject, index);
+        throw Error(file_error(
+            project_file().string(),
+            "frame " + std::to_string(index) + " out of range 0.." + std::to_string(frames - 1)));
+    ImageReadResult r =
+        read_image_file(frame_path(index).string(), false, NonFinitePolicy::Reject, index);
     if (r.image.width != width || r.image.height != height)
         throw Error(file_error(frame_path(index).string(),
                                "cached frame size differs from the project's " +
@@ -149,9 +150,11 @@ Project Project::from_json(const json& j, const fs::path& dir, const std::string
     p.name = require(j, label, "name", json::value_t::string, "name").get<std::string>();
     const json& src = require(j, label, "source", json::value_t::object, "source");
     p.source = require(src, label, "path", json::value_t::string, "source.path").get<std::string>();
-    p.source_kind = require(src, label, "kind", json::value_t::string, "source.kind").get<std::string>();
+    p.source_kind =
+        require(src, label, "kind", json::value_t::string, "source.kind").get<std::string>();
     if (p.source_kind != "video" && p.source_kind != "sequence")
-        field_error(label, "source.kind", "must be \"video\" or \"sequence\" (got \"" + p.source_kind + "\")");
+        field_error(label, "source.kind",
+                    "must be \"video\" or \"sequence\" (got \"" + p.source_kind + "\")");
     p.source_format = "uint8";
     if (src.contains("format"))
         p.source_format = require(src, label, "format", json::value_t::string, "source.format")
@@ -164,9 +167,11 @@ Project Project::from_json(const json& j, const fs::path& dir, const std::string
     if (!(p.fps > 0.0 && p.fps <= 1000.0))
         field_error(label, "clip.fps", "must be in (0, 1000] (got " + clip.at("fps").dump() + ")");
     const json& cache = require(j, label, "cache", json::value_t::object, "cache");
-    p.frame_pattern = require(cache, label, "frames", json::value_t::string, "cache.frames").get<std::string>();
+    p.frame_pattern =
+        require(cache, label, "frames", json::value_t::string, "cache.frames").get<std::string>();
     if (fs::path(p.frame_pattern).is_absolute() || p.frame_pattern.find("..") != std::string::npos)
-        field_error(label, "cache.frames", "must be a path inside the project folder (got \"" + p.frame_pattern + "\")");
+        field_error(label, "cache.frames",
+                    "must be a path inside the project folder (got \"" + p.frame_pattern + "\")");
     if (const std::string why = frame_pattern_problem(p.frame_pattern); !why.empty())
         field_error(label, "cache.frames", "is not a frame pattern: " + why);
     // The cache is the frames/ folder: anything else (prep/'s radius maps) is not the clip.
@@ -175,7 +180,8 @@ Project Project::from_json(const json& j, const fs::path& dir, const std::string
             label, "cache.frames",
             "must name files in the project's frames/ folder (got \"" + p.frame_pattern + "\")");
     if (p.frame_pattern.find('%') == std::string::npos)
-        field_error(label, "cache.frames", "must be a pattern with %d (got \"" + p.frame_pattern + "\")");
+        field_error(label, "cache.frames",
+                    "must be a pattern with %d (got \"" + p.frame_pattern + "\")");
     for (auto it = j.begin(); it != j.end(); ++it) {
         static const char* known[] = {"version", "name", "source", "clip", "cache"};
         if (std::find(std::begin(known), std::end(known), it.key()) == std::end(known))
@@ -201,7 +207,9 @@ Project Project::load(const fs::path& dir_or_file) {
     return p;
 }
 
-void Project::save() const { write_file_atomic(project_file(), to_json().dump(2) + "\n"); }
+void Project::save() const {
+    write_file_atomic(project_file(), to_json().dump(2) + "\n");
+}
 
 void Project::save_merged(const std::vector<std::string>& own) {
     static std::mutex mutex;
@@ -211,7 +219,8 @@ void Project::save_merged(const std::vector<std::string>& own) {
             const Project disk =
                 from_json(read_json_file(project_file()), dir, project_file().string());
             for (auto it = disk.sections.begin(); it != disk.sections.end(); ++it)
-                if (std::find(own.begin(), own.end(), it.key()) == own.end()) sections[it.key()] = it.value();
+                if (std::find(own.begin(), own.end(), it.key()) == own.end())
+                    sections[it.key()] = it.value();
         } catch (const std::exception&) {
             // An unreadable project.json is replaced by this complete one.
         }

@@ -23,15 +23,15 @@ struct Project {
     static constexpr int kVersion = 1;
     static constexpr const char* kFileName = "project.json";
 
-    fs::path dir;                  // the project folder (not stored)
+    fs::path dir;  // the project folder (not stored)
     int version = kVersion;
     std::string name;
-    std::string source;            // the clip it was made from, as stored
-    std::string source_kind;       // "video" or "sequence"
+    std::string source;       // the clip it was made from, as stored
+    std::string source_kind;  // "video" or "sequence"
     int width = 0, height = 0, frames = 0;
     double fps = 24.0;
-    std::string frame_pattern;     // relative: "frames/frame_%04d.exr"
-    std::string source_format;     // "uint8", "uint16", "half", "float"
+    std::string frame_pattern;                           // relative: "frames/frame_%04d.exr"
+    std::string source_format;                           // "uint8", "uint16", "half", "float"
     nlohmann::json sections = nlohmann::json::object();  // later stages' data
 
     fs::path project_file() const { return dir / kFileName; }

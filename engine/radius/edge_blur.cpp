@@ -21,9 +21,11 @@ std::vector<double> grid(double lo, double hi, double step) {
 
 // Bilinear samples of img [1,1,H,W] at pixel coordinates xs, ys (any equal shapes); `fill` 0
 // outside the image (zeros padding) for validity maps, otherwise the border value.
-torch::Tensor sample(const torch::Tensor& img, const torch::Tensor& xs, const torch::Tensor& ys, bool zeros) {
+torch::Tensor sample(const torch::Tensor& img, const torch::Tensor& xs, const torch::Tensor& ys,
+                     bool zeros) {
     const int64_t H = img.size(2), W = img.size(3);
-    auto gx = xs * (2.0 / std::max<int64_t>(W - 1, 1)) - 1.0, gy = ys * (2.0 / std::max<int64_t>(H - 1, 1)) - 1.0;
+    auto gx = xs * (2.0 / std::max<int64_t>(W - 1, 1)) - 1.0,
+         gy = ys * (2.0 / std::max<int64_t>(H - 1, 1)) - 1.0;
     auto g = torch::stack({gx, gy}, -1).to(torch::kFloat32).reshape({1, -1, 1, 2});
     auto v = torch::grid_sampler(img, g, 0, zeros ? 0 : 1, true);  // bilinear, align_corners
     return v.reshape(xs.sizes());
@@ -46,7 +48,11 @@ torch::Tensor edge_spread_table(const LensBlurParams& kernel, const EdgeBlurOpti
     auto xs = torch::arange(Ww, torch::kFloat64) - double(o.reach + margin);
     std::vector<torch::Tensor> steps;
     for (double s0 : offsets) steps.push_back((xs + 0.5 - s0).clamp(0, 1));
-    auto img = torch::stack(steps).view({int64_t(offsets.size()), 1, Ww}).expand({-1, Hh, -1}).to(torch::kFloat32).contiguous();
+    auto img = torch::stack(steps)
+                   .view({int64_t(offsets.size()), 1, Ww})
+                   .expand({-1, Hh, -1})
+                   .to(torch::kFloat32)
+                   .contiguous();
     std::vector<torch::Tensor> rows;
     for (double r : radii) {
         auto b = lens_blur(img, torch::full({Hh, Ww}, float(r)), kernel);
@@ -91,7 +97,8 @@ EdgeBlurSamples measure_edge_blur(const torch::Tensor& luma_in, const torch::Ten
     auto inside = allowed[0][0] > 0.5;
     if (inside.sum().item<int64_t>() == 0) return empty();
     auto mags = mag.masked_select(inside);
-    const int64_t kq = std::clamp<int64_t>(int64_t(o.edge_quantile * mags.numel()), 1, mags.numel());
+    const int64_t kq =
+        std::clamp<int64_t>(int64_t(o.edge_quantile * mags.numel()), 1, mags.numel());
     const double thr = std::max(1e-6, std::get<0>(mags.kthvalue(kq)).item<double>());
     auto cand = (mag >= m1) & (mag >= m2) & (mag > thr) & inside;
     auto idx = torch::nonzero(cand);  // [N,2] (y, x), row-major order
@@ -112,7 +119,7 @@ EdgeBlurSamples measure_edge_blur(const torch::Tensor& luma_in, const torch::Ten
     auto ex = enx.view({N, 1, 1}), ey = eny.view({N, 1, 1});
     auto cx = px.to(torch::kFloat32).view({N, 1, 1}) + s * ex - u * ey;
     auto cy = py.to(torch::kFloat32).view({N, 1, 1}) + s * ey + u * ex;
-    auto Y = sample(L, cx, cy, false).mean(1).to(torch::kFloat64);                    // [N,S]
+    auto Y = sample(L, cx, cy, false).mean(1).to(torch::kFloat64);                     // [N,S]
     auto valid = (sample(allowed, cx, cy, true).amin(1) > 0.999).to(torch::kFloat64);  // [N,S]
 
     // 3. Least squares of a + b·ESF over each hypothesis's window (closed form for a, b), for
@@ -123,13 +130,15 @@ EdgeBlurSamples measure_edge_blur(const torch::Tensor& luma_in, const torch::Ten
     std::vector<double> wk(K * S);
     for (int64_t k = 0; k < K; ++k) {
         const double r = radii[k / O], s0 = offsets[k % O];
-        for (int64_t j = 0; j < S; ++j) wk[k * S + j] = std::abs(double(j - o.reach) - s0) <= r + o.pad ? 1.0 : 0.0;
+        for (int64_t j = 0; j < S; ++j)
+            wk[k * S + j] = std::abs(double(j - o.reach) - s0) <= r + o.pad ? 1.0 : 0.0;
     }
     auto Wn = torch::tensor(wk, torch::kFloat64).view({K, S});
     auto WM = Wn * M, WMM = WM * M;
     auto Yv = Y * valid;
     auto Sw = Wn.sum(1), Sm = WM.sum(1), Smm = WMM.sum(1);  // [K]
-    auto Sy = torch::matmul(Yv, Wn.t()), Sym = torch::matmul(Yv, WM.t()), Syy = torch::matmul(Yv * Y, Wn.t());
+    auto Sy = torch::matmul(Yv, Wn.t()), Sym = torch::matmul(Yv, WM.t()),
+         Syy = torch::matmul(Yv * Y, Wn.t());
     // A hypothesis whose window leaves the allowed region is not tested for this edge.
     auto outside = torch::matmul(1.0 - valid, Wn.t()) > 0.5;  // [N,K]
     auto den = (Sw * Smm - Sm * Sm).clamp_min(1e-12);

@@ -22,16 +22,16 @@
 namespace refocus {
 
 struct EdgeBlurOptions {
-    double sigma = 1.0;           // Gaussian derivative scale of the edge detector (px)
-    int along = 3;                // the profile is averaged over ±along px along the edge
-    int reach = 16;               // ... and sampled over ±reach px across it
-    double rmax = 12.0;           // radii tested: 0, rstep, ..., rmax (px)
+    double sigma = 1.0;  // Gaussian derivative scale of the edge detector (px)
+    int along = 3;       // the profile is averaged over ±along px along the edge
+    int reach = 16;      // ... and sampled over ±reach px across it
+    double rmax = 12.0;  // radii tested: 0, rstep, ..., rmax (px)
     double rstep = 0.25;
-    double pad = 3.5;             // fit window: |s − s0| ≤ r + pad
-    double max_residual = 6e-4;   // mean squared residual / b² an accepted edge stays under
-    double min_contrast = 0.03;   // linear-light luma step an accepted edge has at least
-    double edge_quantile = 0.7;   // candidates: gradient maxima above this quantile of |∇|
-    int max_candidates = 40000;   // more are subsampled evenly (deterministic)
+    double pad = 3.5;            // fit window: |s − s0| ≤ r + pad
+    double max_residual = 6e-4;  // mean squared residual / b² an accepted edge stays under
+    double min_contrast = 0.03;  // linear-light luma step an accepted edge has at least
+    double edge_quantile = 0.7;  // candidates: gradient maxima above this quantile of |∇|
+    int max_candidates = 40000;  // more are subsampled evenly (deterministic)
 };
 
 // Accepted edges: pixel coordinates, radius (px), residual; 1-D tensors of one length.
@@ -49,6 +49,7 @@ EdgeBlurSamples measure_edge_blur(const torch::Tensor& luma, const torch::Tensor
 // The model's step responses, [K, 2·reach + 1] for radii × offsets (row k: radius
 // radii[k / offsets], offset offsets[k % offsets]); exposed for tests.
 torch::Tensor edge_spread_table(const LensBlurParams& kernel, const EdgeBlurOptions& opts,
-                                std::vector<double>* radii = nullptr, std::vector<double>* offsets = nullptr);
+                                std::vector<double>* radii = nullptr,
+                                std::vector<double>* offsets = nullptr);
 
 }  // namespace refocus

@@ -30,9 +30,9 @@ torch::Tensor tukey(int64_t n, double share) {
 
 // The pooling of a tile's frequencies into rings of |f| (0 < |f| < 1/2, width 1/max(h,w)).
 struct Rings {
-    torch::Tensor index;     // [h*w] ring of each frequency, −1 where not used
-    torch::Tensor count;     // [G] frequencies per ring
-    torch::Tensor freq;      // [G] mean |f| over the ring
+    torch::Tensor index;  // [h*w] ring of each frequency, −1 where not used
+    torch::Tensor count;  // [G] frequencies per ring
+    torch::Tensor freq;   // [G] mean |f| over the ring
     int64_t size = 0;
 };
 
@@ -53,7 +53,8 @@ Rings make_rings(int64_t h, int64_t w) {
     r.index = torch::where(in, renum.index({idx}), torch::full_like(idx, -1));
     auto used = r.index >= 0;
     auto ui = r.index.masked_select(used);
-    r.count = torch::zeros({r.size}, torch::kFloat64).index_add_(0, ui, torch::ones({ui.size(0)}, torch::kFloat64));
+    r.count = torch::zeros({r.size}, torch::kFloat64)
+                  .index_add_(0, ui, torch::ones({ui.size(0)}, torch::kFloat64));
     auto sum_f = torch::zeros({r.size}, torch::kFloat64).index_add_(0, ui, f.masked_select(used));
     r.freq = sum_f / r.count.clamp_min(1);
     return r;
@@ -84,14 +85,15 @@ torch::Tensor pool(const torch::Tensor& x, const Rings& r) {
 // |K_r(f)|² of the fit's kernel on the tile's frequency grid, pooled: [R, G]. The kernel is the
 // lens blur layer's own (a delta blurred by it at constant radius), so the estimate is in the
 // units the fit needs, whatever kernel it uses.
-torch::Tensor kernel_power(const std::vector<double>& radii, int64_t h, int64_t w, const LensBlurParams& kernel,
-                           const Rings& rings) {
+torch::Tensor kernel_power(const std::vector<double>& radii, int64_t h, int64_t w,
+                           const LensBlurParams& kernel, const Rings& rings) {
     std::vector<torch::Tensor> rows;
     for (double r : radii) {
         const int64_t half = int64_t(std::ceil(lens_blur_support(r, kernel))) + 1;
         const int64_t s = 2 * half + 1;
-        if (s > h || s > w) throw Error("spectral blur: a " + std::to_string(r) + " px kernel does not fit a " +
-                                        std::to_string(h) + "x" + std::to_string(w) + " tile");
+        if (s > h || s > w)
+            throw Error("spectral blur: a " + std::to_string(r) + " px kernel does not fit a " +
+                        std::to_string(h) + "x" + std::to_string(w) + " tile");
         auto delta = torch::zeros({1, s, s}, torch::kFloat64);
         delta[0][half][half] = 1.0;
         auto k = lens_blur(delta, torch::full({s, s}, r, torch::kFloat64), kernel)[0];
@@ -106,14 +108,16 @@ torch::Tensor kernel_power(const std::vector<double>& radii, int64_t h, int64_t 
 }
 
 // L(r) for tiles' pooled periodograms P [N, G] against A = |K|²/|f|² [R, G]: [N, R].
-torch::Tensor evidence(const torch::Tensor& P, const torch::Tensor& A, const torch::Tensor& n, int iters) {
+torch::Tensor evidence(const torch::Tensor& P, const torch::Tensor& A, const torch::Tensor& n,
+                       int iters) {
     const int64_t N = P.size(0), R = A.size(0);
     auto Pn = P.view({N, 1, -1});
     auto An = A.view({1, R, -1});
     auto nn = n.view({1, 1, -1});
     // Start: c from the lowest quarter of rings (where |K|² ≈ 1), s² from the highest quarter.
     const int64_t G = P.size(1), q = std::max<int64_t>(1, G / 4);
-    auto c0 = (P.narrow(1, 0, q) / A.select(0, 0).narrow(0, 0, q).view({1, -1})).mean(1).clamp_min(1e-30);
+    auto c0 =
+        (P.narrow(1, 0, q) / A.select(0, 0).narrow(0, 0, q).view({1, -1})).mean(1).clamp_min(1e-30);
     auto s0 = (P.narrow(1, G - q, q).mean(1) * 0.5).clamp_min(1e-30);
     auto p = c0.log().view({N, 1}).expand({N, R}).clone();
     auto s = s0.log().view({N, 1}).expand({N, R}).clone();
@@ -143,8 +147,8 @@ torch::Tensor periodograms(const torch::Tensor& tiles, const SpectralBlurOptions
 }
 
 // L(r) [N, R], the least over the prior's exponents.
-torch::Tensor evidence_over_exponents(const torch::Tensor& P, const torch::Tensor& K2, const Rings& rings,
-                                      const SpectralBlurOptions& o) {
+torch::Tensor evidence_over_exponents(const torch::Tensor& P, const torch::Tensor& K2,
+                                      const Rings& rings, const SpectralBlurOptions& o) {
     torch::Tensor best;
     for (double a : o.exponents) {
         auto L = evidence(P, K2 * rings.freq.pow(-a).view({1, -1}), rings.count, o.fisher_iters);
@@ -164,8 +168,10 @@ torch::Tensor spectral_blur_evidence(const torch::Tensor& tile, const std::vecto
     return evidence_over_exponents(P, K2, rings, o)[0];
 }
 
-SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma_in, const torch::Tensor& allowed_in,
-                                          const LensBlurParams& kernel, const SpectralBlurOptions& o) {
+SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma_in,
+                                          const torch::Tensor& allowed_in,
+                                          const LensBlurParams& kernel,
+                                          const SpectralBlurOptions& o) {
     if (luma_in.dim() != 2) throw Error("spectral blur: luma must be [H,W]");
     // A frame wider than max_width is read at 1/k of its size (area average; a pixel allowed where
     // all its k×k are), and its readings scaled back by k: the tiles and radii above are sized
@@ -175,16 +181,20 @@ SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma_in, const to
     if (k > 1) {
         namespace F = torch::nn::functional;
         auto pool = F::AvgPool2dFuncOptions(k).stride(k);
-        luma = F::avg_pool2d(luma_in.to(torch::kFloat64).view({1, 1, luma_in.size(0), luma_in.size(1)}), pool)[0][0];
-        allowed = F::avg_pool2d((allowed_in.to(torch::kFloat64) > 0.5).to(torch::kFloat64)
-                                    .view({1, 1, allowed_in.size(0), allowed_in.size(1)}), pool)[0][0] > 0.999;
+        luma = F::avg_pool2d(
+            luma_in.to(torch::kFloat64).view({1, 1, luma_in.size(0), luma_in.size(1)}), pool)[0][0];
+        allowed = F::avg_pool2d((allowed_in.to(torch::kFloat64) > 0.5)
+                                    .to(torch::kFloat64)
+                                    .view({1, 1, allowed_in.size(0), allowed_in.size(1)}),
+                                pool)[0][0] > 0.999;
     }
     const int64_t H = luma.size(0), W = luma.size(1), th = o.tile_h, tw = o.tile_w;
     SpectralBlurSamples out;
     auto empty = torch::zeros({0}, torch::kFloat32);
     out.x = out.y = out.radius = empty;
     if (H < th || W < tw) return out;
-    // A tile counts only where every pixel is allowed: the minimum over the tile, by integral image.
+    // A tile counts only where every pixel is allowed: the minimum over the tile, by integral
+    // image.
     auto bad = (allowed.to(torch::kFloat64) < 0.5).to(torch::kFloat64);
     auto ii = torch::zeros({H + 1, W + 1}, torch::kFloat64);
     ii.narrow(0, 1, H).narrow(1, 1, W).copy_(bad.cumsum(0).cumsum(1));
@@ -195,7 +205,8 @@ SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma_in, const to
     while (((H - th) / stride + 1) * ((W - tw) / stride + 1) > o.max_tiles) stride += o.stride / 2;
     for (int64_t y0 = 0; y0 + th <= H; y0 += stride)
         for (int64_t x0 = 0; x0 + tw <= W; x0 += stride) {
-            const double n = acc[y0 + th][x0 + tw] - acc[y0][x0 + tw] - acc[y0 + th][x0] + acc[y0][x0];
+            const double n =
+                acc[y0 + th][x0 + tw] - acc[y0][x0 + tw] - acc[y0 + th][x0] + acc[y0][x0];
             if (n > 0.5) continue;
             ys.push_back(y0);
             xs.push_back(x0);
@@ -205,7 +216,8 @@ SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma_in, const to
     auto l = luma.to(torch::kFloat64);
     std::vector<torch::Tensor> tiles;
     tiles.reserve(ys.size());
-    for (size_t i = 0; i < ys.size(); ++i) tiles.push_back(l.narrow(0, ys[i], th).narrow(1, xs[i], tw));
+    for (size_t i = 0; i < ys.size(); ++i)
+        tiles.push_back(l.narrow(0, ys[i], th).narrow(1, xs[i], tw));
     const auto radii = radius_grid(o);
     const Rings rings = make_rings(th, tw);
     auto K2 = kernel_power(radii, th, tw, kernel, rings);
@@ -218,7 +230,8 @@ SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma_in, const to
     std::vector<float> rx, ry, rr;
     for (int64_t i = 0; i < L.size(0); ++i) {
         const int64_t b = ba[i];
-        if (b == 0 || b == R - 1 || !std::isfinite(La[i][b])) continue;  // at an end of the range: no reading
+        if (b == 0 || b == R - 1 || !std::isfinite(La[i][b]))
+            continue;  // at an end of the range: no reading
         // Parabolic refinement through the neighbours.
         const double l0 = La[i][b - 1], l1 = La[i][b], l2 = La[i][b + 1];
         const double den = l0 - 2 * l1 + l2;

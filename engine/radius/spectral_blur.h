@@ -14,10 +14,10 @@
 // the Gaussian-prior "MAP_k" of blind deconvolution (the blur marginalised over the image, not
 // jointly maximised with it, which favours no blur). Periodogram values are pooled in rings of
 // |f| (the kernel is isotropic), and c, s² are fitted per ring profile by Fisher scoring in
-// log-parameters. Searched over [rmin, rmax]; a tile whose best radius is at either end of the range says
-// nothing and is dropped (a sharp texture's evidence keeps falling toward r = 0). The caller
-// uses it only where the blur is known to be large (edges read past floor_max): a tile averages
-// the blur over 64x128 px, and small blurs are what edges measure well.
+// log-parameters. Searched over [rmin, rmax]; a tile whose best radius is at either end of the
+// range says nothing and is dropped (a sharp texture's evidence keeps falling toward r = 0). The
+// caller uses it only where the blur is known to be large (edges read past floor_max): a tile
+// averages the blur over 64x128 px, and small blurs are what edges measure well.
 #include <torch/types.h>
 
 #include <vector>
@@ -56,10 +56,12 @@ struct SpectralBlurSamples {
 // allowed. `kernel`: the fit's blur. A frame wider than max_width is area-averaged by the
 // integer k that brings it under, read, and its readings (places and radii) scaled by k.
 SpectralBlurSamples measure_spectral_blur(const torch::Tensor& luma, const torch::Tensor& allowed,
-                                          const LensBlurParams& kernel, const SpectralBlurOptions& opts = {});
+                                          const LensBlurParams& kernel,
+                                          const SpectralBlurOptions& opts = {});
 
 // L(r) of one tile [tile_h, tile_w] for each radius in `radii` (exposed for tests).
 torch::Tensor spectral_blur_evidence(const torch::Tensor& tile, const std::vector<double>& radii,
-                                     const LensBlurParams& kernel, const SpectralBlurOptions& opts = {});
+                                     const LensBlurParams& kernel,
+                                     const SpectralBlurOptions& opts = {});
 
 }  // namespace refocus

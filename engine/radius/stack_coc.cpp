@@ -27,16 +27,19 @@ torch::Tensor box(const torch::Tensor& x, int r) {  // [N,C,H,W] box mean, same 
 
 // Warp [N,C,h,w] images onto an H x W grid: output pixel p reads the source at m·p (bicubic).
 // `zeros` pads outside the source with 0 (for validity maps), otherwise with the border value.
-torch::Tensor warp(const torch::Tensor& src, const torch::Tensor& m, int64_t H, int64_t W, bool zeros = false) {
+torch::Tensor warp(const torch::Tensor& src, const torch::Tensor& m, int64_t H, int64_t W,
+                   bool zeros = false) {
     auto ys = torch::arange(H, torch::kFloat64), xs = torch::arange(W, torch::kFloat64);
     auto g = torch::meshgrid({ys, xs}, "ij");
-    auto pts = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({H * W}, torch::kFloat64)}, 0);
+    auto pts =
+        torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({H * W}, torch::kFloat64)}, 0);
     auto p = torch::matmul(m, pts);
     auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, H, W, 2});
     // Normalised by the source's size (align_corners = false).
     auto scale = torch::tensor({2.0 / src.size(3), 2.0 / src.size(2)}, torch::kFloat64);
     auto grid = ((xy + 0.5) * scale - 1.0).to(torch::kFloat32).expand({src.size(0), H, W, 2});
-    return torch::grid_sampler(src, grid, zeros ? 0 : 2, zeros ? 0 : 1, false);  // bilinear/zeros or bicubic/border
+    return torch::grid_sampler(src, grid, zeros ? 0 : 2, zeros ? 0 : 1,
+                               false);  // bilinear/zeros or bicubic/border
 }
 
 // Where a [N,1,H,W] 0/1 map is 1 over the whole (2r+1)² window around a pixel.
@@ -83,8 +86,9 @@ FloorBins floor_bins(int64_t Hc, int64_t Wc, const StackCocOptions& o) {
 
 // Frame t's readings of absolute radius e at (x, y): where the frame's relative radius there
 // (the stack's) is rel, r0 = sqrt(e² − rel²); placed on the canvas by to_canvas_t.
-void add_readings(FloorBins& b, const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& e,
-                  const torch::Tensor& rel_t, const torch::Tensor& to_canvas_t, const StackCocOptions& o,
+void add_readings(FloorBins& b, const torch::Tensor& x, const torch::Tensor& y,
+                  const torch::Tensor& e, const torch::Tensor& rel_t,
+                  const torch::Tensor& to_canvas_t, const StackCocOptions& o,
                   bool near_sharpest_only = false) {
     if (e.numel() == 0) return;
     auto xi = x.to(torch::kLong), yi = y.to(torch::kLong);
@@ -93,16 +97,19 @@ void add_readings(FloorBins& b, const torch::Tensor& x, const torch::Tensor& y, 
     // Tiles count only near their sharpest view: under a blur read from tile spectra the stack's
     // relative readings are mostly its own error, and e² − rel² would take that error off a
     // reading (docs/method.md, Radius estimation).
-    auto keep = near_sharpest_only ? r_rel < o.floor_rel_max : (r_rel < o.floor_rel_max) | (r_rel <= 0.5 * e);
+    auto keep = near_sharpest_only ? r_rel < o.floor_rel_max
+                                   : (r_rel < o.floor_rel_max) | (r_rel <= 0.5 * e);
     auto r0 = (e.pow(2) - r_rel.pow(2)).clamp_min(0).sqrt().masked_select(keep).contiguous();
-    auto pts = torch::stack({x.masked_select(keep), y.masked_select(keep), torch::ones_like(r0)}).to(torch::kFloat64);
+    auto pts = torch::stack({x.masked_select(keep), y.masked_select(keep), torch::ones_like(r0)})
+                   .to(torch::kFloat64);
     auto q = torch::matmul(to_canvas_t.to(torch::kFloat64), pts);
     auto cx = (q[0] / q[2]).contiguous(), cy = (q[1] / q[2]).contiguous();
     const double* px = cx.data_ptr<double>();
     const double* py = cy.data_ptr<double>();
     const float* pr = r0.data_ptr<float>();
     for (int64_t i = 0; i < r0.numel(); ++i) {
-        const int64_t gx = int64_t(std::floor(px[i] / b.cell)), gy = int64_t(std::floor(py[i] / b.cell));
+        const int64_t gx = int64_t(std::floor(px[i] / b.cell)),
+                      gy = int64_t(std::floor(py[i] / b.cell));
         if (gx < 0 || gy < 0 || gx >= b.Gw || gy >= b.Gh) continue;
         b.bins[gy * b.Gw + gx].push_back(pr[i]);
         b.all.push_back(pr[i]);
@@ -126,8 +133,9 @@ float median_of(std::vector<float> v) {
 // min_local readings (robust to the few textures whose edges read a false blur the same way in
 // every frame), a robust quadratic over the cells, held within floor_fill_cells cells of a
 // measured one, the small-radius ramp, and the layer's rim. `*median` gets its median over `own`.
-torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_px, bool plane, int64_t Hc, int64_t Wc,
-                            const torch::Tensor& own, const StackCocOptions& o, double* median) {
+torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_px, bool plane,
+                            int64_t Hc, int64_t Wc, const torch::Tensor& own,
+                            const StackCocOptions& o, double* median) {
     const int cell = b.cell;
     const int64_t Gh = b.Gh, Gw = b.Gw;
     auto med = torch::zeros({1, 1, Gh, Gw}), has = torch::zeros({1, 1, Gh, Gw});
@@ -175,7 +183,8 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
     torch::Tensor coef;
     for (int it = 0; it < 10; ++it) {
         auto sw = wts.sqrt().unsqueeze(1);
-        coef = std::get<0>(torch::linalg::lstsq(A * sw, (R * wts.sqrt()).unsqueeze(1), c10::nullopt, c10::nullopt));
+        coef = std::get<0>(torch::linalg::lstsq(A * sw, (R * wts.sqrt()).unsqueeze(1), c10::nullopt,
+                                                c10::nullopt));
         auto res = R - torch::matmul(A, coef).squeeze(1);
         const double mad = std::max(0.1, res.abs().median().item<double>() * 1.4826);
         auto z = (res / (4.685 * mad)).clamp(-1, 1);
@@ -191,7 +200,8 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
     auto xs = (torch::arange(Wc, torch::kFloat64) + 0.5) / double(Wc) - 0.5;
     auto g = torch::meshgrid({ys, xs}, "ij");
     auto r0 = torch::matmul(basis(g[1].flatten(), g[0].flatten()).narrow(1, 0, P), coef)
-                  .view({Hc, Wc}).to(torch::kFloat32)
+                  .view({Hc, Wc})
+                  .to(torch::kFloat32)
                   // Within the cells' own range: a surface through few cells extrapolates (a
                   // few edges reading little blur can make a floor of several px). A plane
                   // through tiles' centres (32-64 px from the border) may reach their half-size
@@ -203,14 +213,16 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
     // path, where few edges pass, without a floor; more overshoot on a tiny clip
     // (docs/method.md, Radius estimation).
     auto near = has;
-    // A reading stands for reach_px around its place (a tile's half-size), and holds that much further.
+    // A reading stands for reach_px around its place (a tile's half-size), and holds that much
+    // further.
     for (int k = 0; k < o.floor_fill_cells + (reach_px + cell - 1) / cell; ++k)
         near = F::max_pool2d(near, F::MaxPool2dFuncOptions(3).stride(1).padding(1));
     auto support = F::interpolate(near, F::InterpolateFuncOptions()
                                             .size(std::vector<int64_t>{Gh * cell, Gw * cell})
                                             .mode(torch::kBilinear)
                                             .align_corners(false))
-                       .narrow(2, 0, Hc).narrow(3, 0, Wc)[0][0];
+                       .narrow(2, 0, Hc)
+                       .narrow(3, 0, Wc)[0][0];
     r0 = r0 * support;
     const double lo = o.floor_lo, hi = std::max(o.floor_hi, lo + 1e-3);
     r0 = torch::where(r0 >= hi, r0, ((r0 - lo) / (hi - lo)).clamp(0, 1) * hi);
@@ -238,8 +250,9 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
 // that follows the texture (docs/method.md, Radius estimation).
 // Where the edges' floor reads past floor_max, the blur is read from tile spectra instead
 // (spectral_blur.h).
-torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, const torch::Tensor& region,
-                             const std::vector<torch::Tensor>& rel, const torch::Tensor& own, const StackCocOptions& o,
+torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas,
+                             const torch::Tensor& region, const std::vector<torch::Tensor>& rel,
+                             const torch::Tensor& own, const StackCocOptions& o,
                              std::string& report, bool* spectral) {
     *spectral = false;
     const int64_t Hc = own.size(0), Wc = own.size(1), H = d.height, W = d.width;
@@ -257,16 +270,18 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     }
     char buf[400];
     if (edges.used < o.min_edges) {
-        std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable: no floor", (long long)measured,
-                      (long long)edges.used);
+        std::snprintf(buf, sizeof buf, "%lld edges measured, %lld usable: no floor",
+                      (long long)measured, (long long)edges.used);
         report = buf;
         return torch::zeros({Hc, Wc});
     }
     double floor_median = 0;
-    auto r0 = floor_surface(edges, o.min_local_edges, o.edge.rmax, 0, false, Hc, Wc, own, o, &floor_median);
-    std::snprintf(buf, sizeof buf, "%lld of %lld edges measured, %lld usable (median %.2f px), floor median %.2f px",
-                  (long long)measured, (long long)candidates, (long long)edges.used, double(median_of(edges.all)),
-                  floor_median);
+    auto r0 = floor_surface(edges, o.min_local_edges, o.edge.rmax, 0, false, Hc, Wc, own, o,
+                            &floor_median);
+    std::snprintf(buf, sizeof buf,
+                  "%lld of %lld edges measured, %lld usable (median %.2f px), floor median %.2f px",
+                  (long long)measured, (long long)candidates, (long long)edges.used,
+                  double(median_of(edges.all)), floor_median);
     report = buf;
     if (floor_median <= o.spectral_from) return r0;
     // Large blur: edges read it low. A wall blurred 6-9 px carries its texture (glyphs, checkers of
@@ -281,26 +296,31 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
     if (o.spectral) {
         for (int64_t t = 0; t < d.frames; ++t) {
             auto allowed = region.defined()
-                               ? erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0), o.floor_gate_clear_px)[0][0] > 0.5
+                               ? erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0),
+                                       o.floor_gate_clear_px)[0][0] > 0.5
                                : torch::ones({H, W}, torch::kBool);
-            const SpectralBlurSamples s = measure_spectral_blur(lumas[t], allowed, d.blur, o.spectral_blur);
+            const SpectralBlurSamples s =
+                measure_spectral_blur(lumas[t], allowed, d.blur, o.spectral_blur);
             tested += s.tiles;
             // A tile reading under floor_max contradicts the edges: a panel of checkers or a
             // sunburst, whose harmonics a small blur explains better.
             auto large = s.radius > o.floor_max;
             if (s.size())
-                add_readings(tiles, s.x.masked_select(large), s.y.masked_select(large), s.radius.masked_select(large),
-                             rel[t], to_canvas[t], o, /*near_sharpest_only=*/true);
+                add_readings(tiles, s.x.masked_select(large), s.y.masked_select(large),
+                             s.radius.masked_select(large), rel[t], to_canvas[t], o,
+                             /*near_sharpest_only=*/true);
         }
     }
     double spectral_median = 0;
     torch::Tensor r0s;
     if (tiles.used >= o.min_tiles)
         r0s = floor_surface(tiles, o.min_local_edges, o.spectral_blur.rmax,
-                            std::max(o.spectral_blur.tile_h, o.spectral_blur.tile_w) / 2, true, Hc, Wc, own, o,
-                            &spectral_median);
-    std::snprintf(buf, sizeof buf, "; tile spectra: %lld of %lld tiles read (median %.2f px), floor median %.2f px",
-                  (long long)tiles.used, (long long)tested, double(median_of(tiles.all)), spectral_median);
+                            std::max(o.spectral_blur.tile_h, o.spectral_blur.tile_w) / 2, true, Hc,
+                            Wc, own, o, &spectral_median);
+    std::snprintf(buf, sizeof buf,
+                  "; tile spectra: %lld of %lld tiles read (median %.2f px), floor median %.2f px",
+                  (long long)tiles.used, (long long)tested, double(median_of(tiles.all)),
+                  spectral_median);
     const std::string tiles_line = o.spectral ? std::string(buf) : std::string();
     if (o.spectral && tiles.used >= o.min_tiles && spectral_median > o.floor_max) {
         report += tiles_line + ", taken";
@@ -311,18 +331,20 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas, c
         report += tiles_line + ", the edges' taken";
         return r0;
     }
-    report += tiles_line + ": past what isolated edges measure (" + fmt_px(o.floor_max) + "), withdrawn";
+    report +=
+        tiles_line + ": past what isolated edges measure (" + fmt_px(o.floor_max) + "), withdrawn";
     return torch::zeros({Hc, Wc});
 }
 
 // The layer's frames on a canvas in reference coordinates and their all-in-focus composite.
 struct LayerComposite {
     int64_t Hc = 0, Wc = 0;
-    torch::Tensor to_canvas;                // [T,3,3] float64 frame → canvas
-    std::vector<torch::Tensor> reg_valid;   // per frame [1,Hc,Wc]: 1 where the frame covers the canvas
-    torch::Tensor aif;                      // [3,Hc,Wc] all-in-focus composite
-    torch::Tensor covered;                  // [1,1,Hc,Wc] where the composite has a view
-    torch::Tensor own_seen;                 // [Hc,Wc] where the composite is the layer's own
+    torch::Tensor to_canvas;  // [T,3,3] float64 frame → canvas
+    std::vector<torch::Tensor>
+        reg_valid;           // per frame [1,Hc,Wc]: 1 where the frame covers the canvas
+    torch::Tensor aif;       // [3,Hc,Wc] all-in-focus composite
+    torch::Tensor covered;   // [1,1,Hc,Wc] where the composite has a view
+    torch::Tensor own_seen;  // [Hc,Wc] where the composite is the layer's own
 };
 
 // 1. Every frame on a canvas that covers all of them (canvas pixel p reads frame t at
@@ -330,8 +352,8 @@ struct LayerComposite {
 //    content entering a pan later would take smeared border pixels as its "sharpest view".
 // 2. All-in-focus: local contrast (box-filtered squared Laplacian of luma) picks, softly, the
 //    sharpest frame at each pixel among the views whose contrast window lies inside their frame.
-LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in, const torch::Tensor& region,
-                               const StackCocOptions& o) {
+LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
+                               const torch::Tensor& region, const StackCocOptions& o) {
     const int64_t T = d.frames, H = d.height, W = d.width;
     LayerComposite c;
     const AtlasBox box_ref = mapped_frames_box(to_ref_in, H, W);
@@ -346,12 +368,16 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
         auto inv = torch::inverse(c.to_canvas[t]);
         reg.push_back(warp(d.input[t].unsqueeze(0), inv, Hc, Wc)[0]);
         c.reg_valid.push_back((warp(ones, inv, Hc, Wc, true)[0] > 0.999).to(torch::kFloat32));
-        if (region.defined()) reg_region.push_back(warp(region[t].unsqueeze(0), inv, Hc, Wc, true)[0].clamp(0, 1));
+        if (region.defined())
+            reg_region.push_back(warp(region[t].unsqueeze(0), inv, Hc, Wc, true)[0].clamp(0, 1));
     }
     auto stack = torch::stack(reg);  // [T,3,Hc,Wc]
-    auto luma = (0.299 * stack.select(1, 0) + 0.587 * stack.select(1, 1) + 0.114 * stack.select(1, 2)).unsqueeze(1);
-    auto lap = F::conv2d(F::pad(luma, F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kReplicate)),
-                         torch::tensor({0.f, 1.f, 0.f, 1.f, -4.f, 1.f, 0.f, 1.f, 0.f}).view({1, 1, 3, 3}));
+    auto luma =
+        (0.299 * stack.select(1, 0) + 0.587 * stack.select(1, 1) + 0.114 * stack.select(1, 2))
+            .unsqueeze(1);
+    auto lap =
+        F::conv2d(F::pad(luma, F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kReplicate)),
+                  torch::tensor({0.f, 1.f, 0.f, 1.f, -4.f, 1.f, 0.f, 1.f, 0.f}).view({1, 1, 3, 3}));
     auto valid = erode(torch::stack(c.reg_valid), o.contrast_window + 1);  // [T,1,Hc,Wc]
     auto contrast = box(lap.pow(2), o.contrast_window) * valid;
     auto w = (contrast / contrast.amax({0}, true).clamp_min(1e-12)).pow(8) * valid;
@@ -366,16 +392,16 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
         w = torch::where(wo.sum(0, true) > 1e-6, wo, w);
         c.own_seen = (wo.sum(0)[0] > 1e-6).to(torch::kFloat32);
     }
-    auto wsum = w.sum(0);                                       // [1,Hc,Wc]
-    c.aif = (stack * w).sum(0) / wsum.clamp_min(1e-12);         // [3,Hc,Wc]
+    auto wsum = w.sum(0);                                         // [1,Hc,Wc]
+    c.aif = (stack * w).sum(0) / wsum.clamp_min(1e-12);           // [3,Hc,Wc]
     c.covered = (wsum > 1e-12).to(torch::kFloat32).unsqueeze(0);  // [1,1,Hc,Wc]
     return c;
 }
 
 // 3. Frame t's radius relative to the composite: the blur of the composite that matches the
 //    frame best, locally; 4. spread from where the match is measured into flat regions. [H,W]
-torch::Tensor relative_radius(const FitData& d, const LayerComposite& c, const torch::Tensor& region, int64_t t,
-                              const StackCocOptions& o) {
+torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
+                              const torch::Tensor& region, int64_t t, const StackCocOptions& o) {
     const int64_t H = d.height, W = d.width;
     std::vector<double> radii;
     for (double r = 0; r <= o.rmax + 1e-9; r += o.rstep) radii.push_back(r);
@@ -383,23 +409,26 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c, const t
     const LensBlurParams& bp = d.blur;
     auto aif_t = warp(c.aif.unsqueeze(0), c.to_canvas[t], H, W)[0].contiguous();
     // Pixels whose matching window reads canvas the composite does not cover are not measured.
-    auto seen = erode(warp(c.covered, c.to_canvas[t], H, W, true).gt(0.999).to(torch::kFloat32), o.window)[0][0];
+    auto seen = erode(warp(c.covered, c.to_canvas[t], H, W, true).gt(0.999).to(torch::kFloat32),
+                      o.window)[0][0];
     std::vector<torch::Tensor> costs;
     for (double r : radii) {
         auto b = r < bp.min_radius ? aif_t : lens_blur(aif_t, torch::full({H, W}, float(r)), bp);
         costs.push_back((b - d.input[t]).pow(2).sum(0, true));
     }
     auto cost = box(torch::stack(costs), o.window).squeeze(1);  // [K,H,W]
-    auto best = cost.argmin(0);                                  // [H,W]
+    auto best = cost.argmin(0);                                 // [H,W]
     // Sub-step refinement: parabola through the neighbours of the minimum.
     auto bi = best.clamp(1, K - 2);
     auto c0 = cost.gather(0, (bi - 1).unsqueeze(0))[0], c1 = cost.gather(0, bi.unsqueeze(0))[0],
          c2 = cost.gather(0, (bi + 1).unsqueeze(0))[0];
     auto denom = (c0 - 2 * c1 + c2);
-    auto off = torch::where(denom > 1e-12, 0.5 * (c0 - c2) / denom.clamp_min(1e-12), torch::zeros_like(denom))
+    auto off = torch::where(denom > 1e-12, 0.5 * (c0 - c2) / denom.clamp_min(1e-12),
+                            torch::zeros_like(denom))
                    .clamp(-0.5, 0.5);
     auto interior = (best >= 1) & (best <= K - 2);
-    auto r = best.to(torch::kFloat32) * o.rstep + torch::where(interior, off, torch::zeros_like(off)) * o.rstep;
+    auto r = best.to(torch::kFloat32) * o.rstep +
+             torch::where(interior, off, torch::zeros_like(off)) * o.rstep;
     auto cmin = std::get<0>(cost.min(0));
     auto conf = (std::get<0>(cost.max(0)) - cmin) / (float(2 * o.window + 1) * (2 * o.window + 1));
     // Explained variance: the composite blurred to the right radius explains nearly all of the
@@ -407,7 +436,8 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c, const t
     // holding wall texture, a bad registration) the cost only falls with r as blur flattens the
     // mismatch to its mean, and its minimum, at a large r, explains little.
     auto frame = d.input[t].unsqueeze(0);
-    auto var = (box(frame.pow(2), o.window) - box(frame, o.window).pow(2)).sum(1)[0].clamp_min(1e-8);
+    auto var =
+        (box(frame.pow(2), o.window) - box(frame, o.window).pow(2)).sum(1)[0].clamp_min(1e-8);
     auto explained = 1.0 - cmin / var;
     auto trust = ((explained - o.min_explained) / (1.0 - o.min_explained)).clamp(0, 1);
     auto wt = (conf > o.min_confidence).to(torch::kFloat32).mul(conf) * seen * trust;
@@ -419,13 +449,14 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c, const t
     // the same luma) from taking its neighbours' radius; what stays uncovered takes the wide pass.
     Image cover_near, cover_far;
     Image near = weighted_guided_filter(guide, src, weight, o.spread_px, 1e-3, &cover_near);
-    Image far = weighted_guided_filter(guide, src, weight, std::max<int>(o.spread_px, std::min(H, W) / 10), 1e-3,
-                                       &cover_far);
+    Image far = weighted_guided_filter(
+        guide, src, weight, std::max<int>(o.spread_px, std::min(H, W) / 10), 1e-3, &cover_far);
     auto fn = image_to_tensor(near)[0], ff = image_to_tensor(far)[0];
     auto has_near = image_to_tensor(cover_near)[0] > 0, has_far = image_to_tensor(cover_far)[0] > 0;
     // Where nothing near was measured, no evidence of blur: radius 0 keeps the frame as it is
     // (the raw argmin there is whatever flattened a mismatch best, often the largest radius).
-    return torch::where(has_near, fn, torch::where(has_far, ff, torch::zeros_like(ff))).clamp(0.0, o.rmax);
+    return torch::where(has_near, fn, torch::where(has_far, ff, torch::zeros_like(ff)))
+        .clamp(0.0, o.rmax);
 }
 
 // The largest relative radius any view reads at each canvas point [1,1,Hc,Wc]: where it is
@@ -434,7 +465,8 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c, const t
 // Under a floor from tile spectra the views' quantile counts instead of their largest: there
 // the largest is the stack's error, and a change of focus shows in many views.
 torch::Tensor relative_max(const FitData& d, const LayerComposite& c, const torch::Tensor& region,
-                           const std::vector<torch::Tensor>& out, bool spectral, const StackCocOptions& o) {
+                           const std::vector<torch::Tensor>& out, bool spectral,
+                           const StackCocOptions& o) {
     const int64_t T = d.frames, H = d.height, W = d.width, Hc = c.Hc, Wc = c.Wc;
     auto relmax = torch::zeros({1, 1, Hc, Wc});
     auto relmax_clear = torch::zeros({1, 1, Hc, Wc}), clear_seen = torch::zeros({1, 1, Hc, Wc});
@@ -444,15 +476,18 @@ torch::Tensor relative_max(const FitData& d, const LayerComposite& c, const torc
         auto rel = warp(out[t].view({1, 1, H, W}), inv, Hc, Wc, true);
         relmax = torch::maximum(relmax, rel);
         if (region.defined()) {
-            auto clear = warp(erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0), o.floor_gate_clear_px), inv,
-                              Hc, Wc, true)
+            auto clear = warp(erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0),
+                                    o.floor_gate_clear_px),
+                              inv, Hc, Wc, true)
                              .gt(0.999)
                              .to(torch::kFloat32);
             relmax_clear = torch::maximum(relmax_clear, rel * clear);
             clear_seen = torch::maximum(clear_seen, clear);
             if (spectral) clear_views.push_back(clear * c.reg_valid[t]);
         }
-        if (spectral) rel_views.push_back(torch::where(c.reg_valid[t] > 0.5, rel, torch::full_like(rel, NAN)));
+        if (spectral)
+            rel_views.push_back(
+                torch::where(c.reg_valid[t] > 0.5, rel, torch::full_like(rel, NAN)));
     }
     if (region.defined()) relmax = torch::where(clear_seen > 0.5, relmax_clear, relmax);
     if (spectral) {
@@ -471,29 +506,36 @@ torch::Tensor relative_max(const FitData& d, const LayerComposite& c, const torc
 // the stack trusts, and a floor there only adds the readings' errors (docs/method.md, Radius
 // estimation). The gate is 1 where the largest relative radius is under gate_lo, 0 over gate_hi.
 void add_absolute_floor(const FitData& d, const LayerComposite& c, const torch::Tensor& region,
-                        std::vector<torch::Tensor>& out, const StackCocOptions& o, std::string* report,
-                        double* fixed_share) {
+                        std::vector<torch::Tensor>& out, const StackCocOptions& o,
+                        std::string* report, double* fixed_share) {
     const int64_t T = d.frames, H = d.height, W = d.width, Hc = c.Hc, Wc = c.Wc;
     std::string line;
     bool spectral = false;
-    auto floor = absolute_floor(d, c.to_canvas, region, out, c.own_seen, o, line, &spectral).view({1, 1, Hc, Wc});
+    auto floor = absolute_floor(d, c.to_canvas, region, out, c.own_seen, o, line, &spectral)
+                     .view({1, 1, Hc, Wc});
     auto relmax = relative_max(d, c, region, out, spectral, o);
     // Under a large floor the relative readings are noisy by more than gate_lo, and a change of
     // focus that matters there is a large one: the thresholds are at least these shares of it.
-    auto glo = torch::maximum(torch::full_like(floor, o.floor_gate_lo), o.floor_gate_rel_lo * floor);
-    auto ghi = torch::maximum(torch::full_like(floor, o.floor_gate_hi), o.floor_gate_rel_hi * floor);
+    auto glo =
+        torch::maximum(torch::full_like(floor, o.floor_gate_lo), o.floor_gate_rel_lo * floor);
+    auto ghi =
+        torch::maximum(torch::full_like(floor, o.floor_gate_hi), o.floor_gate_rel_hi * floor);
     ghi = torch::maximum(ghi, glo + 1e-3);
     auto gate = ((ghi - relmax) / (ghi - glo)).clamp(0, 1);
     const auto ungated = floor;
     floor = floor * gate;
-    const double share =
-        floor.max().item<double>() > 0
-            ? gate.view({Hc, Wc}).masked_select(c.own_seen > 0.5).gt(0.5).to(torch::kFloat32).mean().item<double>()
-            : 0.0;
+    const double share = floor.max().item<double>() > 0 ? gate.view({Hc, Wc})
+                                                              .masked_select(c.own_seen > 0.5)
+                                                              .gt(0.5)
+                                                              .to(torch::kFloat32)
+                                                              .mean()
+                                                              .item<double>()
+                                                        : 0.0;
     if (fixed_share) *fixed_share = share;
     if (report) {
         char buf[96];
-        std::snprintf(buf, sizeof buf, ", applied where focus never changed (%.0f%% of the layer)", 100.0 * share);
+        std::snprintf(buf, sizeof buf, ", applied where focus never changed (%.0f%% of the layer)",
+                      100.0 * share);
         *report = line + (floor.max().item<double>() > 0 ? std::string(buf) : std::string());
     }
     for (int64_t t = 0; t < T; ++t) {
@@ -518,8 +560,9 @@ void add_absolute_floor(const FitData& d, const LayerComposite& c, const torch::
 // Only the layer's own pixels enter its all-in-focus composite and spread into flat areas, so a
 // subject passing over a wall pixel does not become that pixel's "sharpest view", and the wall
 // does not lend the subject its radius.
-torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in, const torch::Tensor& region,
-                           const StackCocOptions& o, std::string* report, double* fixed_share = nullptr) {
+torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in,
+                           const torch::Tensor& region, const StackCocOptions& o,
+                           std::string* report, double* fixed_share = nullptr) {
     const LayerComposite c = layer_composite(d, to_ref_in, region, o);
     std::vector<torch::Tensor> out;
     for (int64_t t = 0; t < d.frames; ++t) out.push_back(relative_radius(d, c, region, t, o));
@@ -533,7 +576,7 @@ void split_radius_by_layer(FitData& d, int margin) {
     d.radius_fg = d.radius_bg = torch::Tensor();
     if (!d.has_subject || !d.mask.defined()) return;
     torch::NoGradGuard no_grad;
-    auto r = d.radius.unsqueeze(1);                                 // [T,1,H,W]
+    auto r = d.radius.unsqueeze(1);  // [T,1,H,W]
     auto fg = (d.mask > 0.5).to(torch::kFloat32);
     auto sure_fg = erode(fg, margin), sure_bg = erode(1.0 - fg, margin);
     std::vector<torch::Tensor> rf, rb;
@@ -558,33 +601,40 @@ void split_radius_by_layer(FitData& d, int margin) {
             auto fg_kept = keep_fg * like_subject;
             keep_fg = fg_kept.sum().item<double>() >= 1 ? fg_kept : core;
             const int reach = std::max(margin, int(std::sqrt(area / M_PI)));
-            auto near = F::max_pool2d(fg[t].unsqueeze(0), F::MaxPool2dFuncOptions(2 * reach + 1).stride(1).padding(reach));
+            auto near =
+                F::max_pool2d(fg[t].unsqueeze(0),
+                              F::MaxPool2dFuncOptions(2 * reach + 1).stride(1).padding(reach));
             auto bg_kept = keep_bg * (1.0 - near * like_subject);
             if (bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
             // Far from the mask the subject's layer is transparent and its radius only costs
             // time (the lens blur scatters every source pixel over its radius): there it takes
             // the visible surface's (docs/method.md, Layered reblur).
             const int far = reach + int(std::ceil(r_core)) + 2;
-            fg_region = F::max_pool2d(fg[t].unsqueeze(0), F::MaxPool2dFuncOptions(2 * far + 1).stride(1).padding(far));
+            fg_region = F::max_pool2d(fg[t].unsqueeze(0),
+                                      F::MaxPool2dFuncOptions(2 * far + 1).stride(1).padding(far));
         }
         // A frame without a sure pixel of a layer keeps the visible surface's map for it.
         auto one = [&](const torch::Tensor& sure) {
-            return sure.sum().item<double>() > 0 ? fill_from(r[t].unsqueeze(0), sure)[0][0] : d.radius[t];
+            return sure.sum().item<double>() > 0 ? fill_from(r[t].unsqueeze(0), sure)[0][0]
+                                                 : d.radius[t];
         };
-        rf.push_back(fg_region.defined() ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), d.radius[t])
-                                         : one(keep_fg));
+        rf.push_back(fg_region.defined()
+                         ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), d.radius[t])
+                         : one(keep_fg));
         rb.push_back(one(keep_bg));
     }
     d.radius_fg = torch::stack(rf).contiguous();
     d.radius_bg = torch::stack(rb).contiguous();
 }
 
-torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o, StackCocReport* report) {
+torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o,
+                                         StackCocReport* report) {
     std::string line_bg, line_fg;
     torch::NoGradGuard no_grad;
     const bool layered = d.has_subject && d.mask.defined();
     if (!layered) {
-        auto r = layer_radius(d, d.to_ref, {}, o, &line_bg, report ? &report->fixed_focus_share : nullptr);
+        auto r = layer_radius(d, d.to_ref, {}, o, &line_bg,
+                              report ? &report->fixed_focus_share : nullptr);
         if (report) report->summary = o.absolute ? "absolute floor: " + line_bg : "relative only";
         return r;
     }
@@ -592,7 +642,8 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
     // track (a moving subject is not where the wall was: compared pixel by pixel across frames it
     // reads as blur, even in focus).
     auto mask = (d.mask > 0.5).to(torch::kFloat32);
-    auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o, &line_bg, report ? &report->fixed_focus_share : nullptr);
+    auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o, &line_bg,
+                           report ? &report->fixed_focus_share : nullptr);
     std::vector<double> vx, vy, sc;
     subject_track(d, vx, vy, &sc);
     std::vector<torch::Tensor> mats;
@@ -603,7 +654,8 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
                            : torch::matmul(from_track0, subject_to_track(vx[t], vy[t], sc[t])));
     auto fg = layer_radius(d, torch::stack(mats), mask, o, &line_fg);
     if (report)
-        report->summary = o.absolute ? "absolute floor: wall " + line_bg + "; subject " + line_fg : "relative only";
+        report->summary = o.absolute ? "absolute floor: wall " + line_bg + "; subject " + line_fg
+                                     : "relative only";
     return torch::where(mask.squeeze(1) > 0.5, fg, bg).contiguous();
 }
 

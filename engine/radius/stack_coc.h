@@ -25,43 +25,44 @@
 namespace refocus {
 
 struct StackCocOptions {
-    double rmax = 14.0;    // largest radius tested (px)
-    double rstep = 0.5;    // radius grid
-    int window = 4;        // half-size of the matching window (px)
+    double rmax = 14.0;  // largest radius tested (px)
+    double rstep = 0.5;  // radius grid
+    int window = 4;      // half-size of the matching window (px)
     int contrast_window = 3;
     double min_confidence = 1e-4;  // cost spread (max − min) below this: not measured here
-    int spread_px = 6;             // window of the confidence-weighted spread (then H/10 for the rest)
-    double min_explained = 0.6;    // share of local variance the best match must explain to count
+    int spread_px = 6;  // window of the confidence-weighted spread (then H/10 for the rest)
+    double min_explained = 0.6;  // share of local variance the best match must explain to count
     // The composite's own (absolute) blur, measured at its edges (edge_blur.h) and added to the
     // stack's relative radius: r_t = sqrt(r0² + r_rel²) (second moments add). Off: relative only.
     bool absolute = true;
     EdgeBlurOptions edge;
-    int min_edges = 20;           // fewer accepted edges in a layer's composite: no floor there
-    int min_local_edges = 3;      // edges within the spread window a pixel's floor averages
-    int floor_fill_cells = 4;     // empty floor cells take their measured neighbours' up to this far
-    double floor_rel_max = 1.0;   // edges count where the frame is within this of its sharpest view
-    double floor_gate_lo = 1.5;   // the floor applies where no frame sees the point blurrier than
-    double floor_gate_hi = 2.5;   //   its sharpest view by gate_lo, and not past gate_hi
-    double floor_gate_rel_lo = 0.4; // ... and not under these shares of the floor itself
+    int min_edges = 20;          // fewer accepted edges in a layer's composite: no floor there
+    int min_local_edges = 3;     // edges within the spread window a pixel's floor averages
+    int floor_fill_cells = 4;    // empty floor cells take their measured neighbours' up to this far
+    double floor_rel_max = 1.0;  // edges count where the frame is within this of its sharpest view
+    double floor_gate_lo = 1.5;  // the floor applies where no frame sees the point blurrier than
+    double floor_gate_hi = 2.5;  //   its sharpest view by gate_lo, and not past gate_hi
+    double floor_gate_rel_lo = 0.4;  // ... and not under these shares of the floor itself
     double floor_gate_rel_hi = 0.6;
     double floor_gate_quantile_spectral = 0.75;  // under a floor from tile spectra the gate reads
                                                  //   this quantile of the views, not their largest
-    int floor_gate_clear_px = 12; // the gate reads only views this far inside the layer's region
-                                  //   (where a point has such views): the other layer's rim
-    double spectral_from = 3.5;   // a layer whose edges' floor reads more is read from tile
-                                  //   spectra (spectral_blur.h), whose floor is taken past floor_max
-    double floor_max = 4.5;       // ... else the edges' up to this, past it none
-    bool spectral = true;         // off: such a layer keeps no floor
+    int floor_gate_clear_px = 12;  // the gate reads only views this far inside the layer's region
+                                   //   (where a point has such views): the other layer's rim
+    double spectral_from = 3.5;    // a layer whose edges' floor reads more is read from tile
+                                 //   spectra (spectral_blur.h), whose floor is taken past floor_max
+    double floor_max = 4.5;  // ... else the edges' up to this, past it none
+    bool spectral = true;    // off: such a layer keeps no floor
     SpectralBlurOptions spectral_blur;
-    int min_tiles = 20;           // fewer tiles read: no floor
-    double floor_lo = 0.75;       // r0 under floor_lo reads 0, from floor_lo to floor_hi it ramps
-    double floor_hi = 1.5;        //   up to r0 (a sharp composite's edges read 0-0.75 px)
+    int min_tiles = 20;      // fewer tiles read: no floor
+    double floor_lo = 0.75;  // r0 under floor_lo reads 0, from floor_lo to floor_hi it ramps
+    double floor_hi = 1.5;   //   up to r0 (a sharp composite's edges read 0-0.75 px)
 };
 
 // What the estimate found, for the log.
 struct StackCocReport {
     std::string summary;  // e.g. "absolute floor: wall 851 edges (median 1.25 px), subject ..."
-    double fixed_focus_share = 0;  // the wall's (one layer: the frame's) share with the floor applied
+    double fixed_focus_share =
+        0;  // the wall's (one layer: the frame's) share with the floor applied
 };
 
 // [T,H,W] radius maps for d.input registered by d.to_ref. Needs at least 2 frames.

@@ -17,7 +17,9 @@ namespace refocus {
 
 using nlohmann::json;
 
-fs::path fit_dir(const Project& project) { return project.dir / "fit"; }
+fs::path fit_dir(const Project& project) {
+    return project.dir / "fit";
+}
 
 void use_settings(FitSettings& s, const Settings& settings) {
     s.fit.settings = settings;
@@ -42,7 +44,8 @@ FitSettings read_fit_settings(const Project& p) {
         // A project that names no kernel was fitted with the paper's disk, and keeps it (its
         // checkpoints' atlases and radii are in its terms).
         s.setup.kernel = f.value("kernel", std::string("disk"));
-        if (f.contains("settings")) s.fit.settings.set_json(f["settings"], label + ": fit.settings");
+        if (f.contains("settings"))
+            s.fit.settings.set_json(f["settings"], label + ": fit.settings");
     } catch (const json::exception& e) {
         throw Error(file_error(label, std::string("malformed 'fit' section: ") + e.what()));
     }
@@ -64,9 +67,14 @@ void write_fit_settings(Project& p, const FitSettings& s, const FitSnapshot* sna
         fs::path r = fs::absolute(path).lexically_relative(fs::absolute(p.dir));
         return r.empty() ? path : r.string();
     };
-    json f = {{"preset", s.fit.preset}, {"seed", s.fit.seed},     {"minutes", s.fit.minutes},
-              {"iters", s.fit.iters},   {"batch", s.fit.batch},   {"coc", rel(s.setup.coc_path)},
-              {"mask", rel(s.setup.mask_path)}, {"kernel", s.setup.kernel},
+    json f = {{"preset", s.fit.preset},
+              {"seed", s.fit.seed},
+              {"minutes", s.fit.minutes},
+              {"iters", s.fit.iters},
+              {"batch", s.fit.batch},
+              {"coc", rel(s.setup.coc_path)},
+              {"mask", rel(s.setup.mask_path)},
+              {"kernel", s.setup.kernel},
               {"checkpoint", "fit/checkpoint.json"}};
     if (!s.fit.settings.empty()) f["settings"] = s.fit.settings.to_json();
     if (snap)
@@ -106,14 +114,22 @@ ExportPass parse_export_pass(const std::string& n) {
 
 const char* export_pass_name(ExportPass p) {
     switch (p) {
-        case ExportPass::Sharp: return "sharp";
-        case ExportPass::Reblur: return "reblur";
-        case ExportPass::Atlas: return "atlas";
-        case ExportPass::Alpha: return "alpha";
-        case ExportPass::Coc: return "coc";
-        case ExportPass::Uv: return "uv";
-        case ExportPass::Refocus: return "refocus";
-        case ExportPass::Depth: return "depth";
+        case ExportPass::Sharp:
+            return "sharp";
+        case ExportPass::Reblur:
+            return "reblur";
+        case ExportPass::Atlas:
+            return "atlas";
+        case ExportPass::Alpha:
+            return "alpha";
+        case ExportPass::Coc:
+            return "coc";
+        case ExportPass::Uv:
+            return "uv";
+        case ExportPass::Refocus:
+            return "refocus";
+        case ExportPass::Depth:
+            return "depth";
     }
     return "?";
 }
@@ -129,18 +145,22 @@ std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const Pro
     torch::Tensor fg = engine.model().atlas_fg();
     if (e->fg.has_edits() && !fg.defined())
         throw Error(file_error(e->fg.label(), "foreground edit, but the fit has one layer"));
-    return {e->bg.delta(engine.model().atlas_bg()), fg.defined() ? e->fg.delta(fg) : torch::Tensor()};
+    return {e->bg.delta(engine.model().atlas_bg()),
+            fg.defined() ? e->fg.delta(fg) : torch::Tensor()};
 }
 }  // namespace
 
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
                                      const std::string& out, const ExportOptions& o) {
     const std::string name = export_pass_name(pass);
-    const bool data_pass = pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth;
+    const bool data_pass =
+        pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth;
     if (data_pass && format != "exr" && format != "exr32")
-        throw Error("--what " + name + " holds values in px / atlas coordinates / inverse depth: use --format exr");
+        throw Error("--what " + name +
+                    " holds values in px / atlas coordinates / inverse depth: use --format exr");
     const bool needs_project = pass == ExportPass::Refocus || pass == ExportPass::Depth;
-    if (needs_project && !o.project) throw Error("--what " + name + " needs the project (its depth and focus keys)");
+    if (needs_project && !o.project)
+        throw Error("--what " + name + " needs the project (its depth and focus keys)");
     const auto [d_bg, d_fg] = edit_deltas(engine, pass == ExportPass::Depth ? nullptr : o.edits);
 
     if (pass == ExportPass::Atlas) {
@@ -152,7 +172,8 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
         auto write = [&](torch::Tensor t, const torch::Tensor& delta, const std::string& layer) {
             if (!t.defined()) return;
             if (delta.defined()) t = t + delta[0];
-            std::string path = (fs::path(out) / ("atlas_" + layer + "." + extension_of(pf))).string();
+            std::string path =
+                (fs::path(out) / ("atlas_" + layer + "." + extension_of(pf))).string();
             write_image_file(path, tensor_to_image(t.clamp_min(0)), pf);
             files.push_back(path);
         };
@@ -194,26 +215,36 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
         Image frame;
         if (needs_project) {
             const FrameMaps m = frame_maps(L);
-            frame = pass == ExportPass::Depth ? depth.depth_map(t, m.uv_bg, m.uv_fg, m.alpha)
-                                              : render_refocused(m, depth, t, track.lens_at(t, &depth), threads);
+            frame = pass == ExportPass::Depth
+                        ? depth.depth_map(t, m.uv_bg, m.uv_fg, m.alpha)
+                        : render_refocused(m, depth, t, track.lens_at(t, &depth), threads);
         } else {
             torch::Tensor img;
             switch (pass) {
-                case ExportPass::Sharp: img = L.sharp[0]; break;
-                case ExportPass::Reblur: img = engine.reblur(L, {t})[0]; break;
+                case ExportPass::Sharp:
+                    img = L.sharp[0];
+                    break;
+                case ExportPass::Reblur:
+                    img = engine.reblur(L, {t})[0];
+                    break;
                 case ExportPass::Alpha:
                     img = L.alpha.defined() ? L.alpha[0] : torch::zeros({1, d.height, d.width});
                     if (cf == ClipFormat::Mp4) img = img.expand({3, d.height, d.width});
                     break;
-                case ExportPass::Coc: img = d.radius[t].unsqueeze(0); break;
+                case ExportPass::Coc:
+                    img = d.radius[t].unsqueeze(0);
+                    break;
                 case ExportPass::Uv: {
                     // (u, v[, u_fg, v_fg]) in [-1, 1]; 2 channels are padded to 3 (RGB layouts).
                     img = L.uv_bg[0].permute({2, 0, 1});
-                    if (L.uv_fg.defined()) img = torch::cat({img, L.uv_fg[0].permute({2, 0, 1})}, 0);
-                    if (img.size(0) == 2) img = torch::cat({img, torch::zeros_like(img[0]).unsqueeze(0)}, 0);
+                    if (L.uv_fg.defined())
+                        img = torch::cat({img, L.uv_fg[0].permute({2, 0, 1})}, 0);
+                    if (img.size(0) == 2)
+                        img = torch::cat({img, torch::zeros_like(img[0]).unsqueeze(0)}, 0);
                     break;
                 }
-                default: break;
+                default:
+                    break;
             }
             frame = tensor_to_image(img.contiguous());
         }

@@ -42,9 +42,9 @@ struct ExportOptions {
     // The project: needed by Refocus (its "focus" section, edit/focus.h, and <project>/depth,
     // built and saved when missing or stale) and Depth.
     const Project* project = nullptr;
-    const ProjectEdits* edits = nullptr;  // atlas edits (paper Fig. 1); null: none
-    const FocusTrack* focus = nullptr;    // focus keys to use instead of the project's section
-    int first = 0, last = -1;             // frames first..last (-1: the last frame)
+    const ProjectEdits* edits = nullptr;     // atlas edits (paper Fig. 1); null: none
+    const FocusTrack* focus = nullptr;       // focus keys to use instead of the project's section
+    int first = 0, last = -1;                // frames first..last (-1: the last frame)
     std::function<bool(int, int)> progress;  // (done, total); false cancels
 };
 

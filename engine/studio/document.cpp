@@ -14,12 +14,15 @@ namespace refocus {
 
 using nlohmann::json;
 
-fs::path StudioDoc::autosave_dir(const fs::path& project_dir) { return project_dir / ".autosave"; }
+fs::path StudioDoc::autosave_dir(const fs::path& project_dir) {
+    return project_dir / ".autosave";
+}
 
 void StudioDoc::load_work(const Project& from, const fs::path& edits_from) {
     const std::string label = from.project_file().string();
-    m_focus = from.sections.contains("focus") ? FocusTrack::from_json(from.sections.at("focus"), label)
-                                              : FocusTrack{};
+    m_focus = from.sections.contains("focus")
+                  ? FocusTrack::from_json(from.sections.at("focus"), label)
+                  : FocusTrack{};
     Project where = from;
     where.dir = edits_from;
     m_edits = ProjectEdits::load(where);
@@ -49,7 +52,9 @@ void StudioDoc::create(const std::string& clip, const std::string& dir) {
     open(p.dir.string());
 }
 
-void StudioDoc::close() { *this = StudioDoc{}; }
+void StudioDoc::close() {
+    *this = StudioDoc{};
+}
 
 void StudioDoc::save() {
     if (!m_project) throw Error("no project is open");
@@ -77,7 +82,8 @@ fs::path StudioDoc::save_as_target(const std::string& dir) const {
     const fs::path from = fs::absolute(m_project->dir).lexically_normal();
     const auto rel = to.lexically_relative(from);
     if (to == from || (!rel.empty() && *rel.begin() != ".."))
-        throw Error(file_error(to.string(), "is inside the project being saved: choose a folder outside it"));
+        throw Error(file_error(to.string(),
+                               "is inside the project being saved: choose a folder outside it"));
     return to;
 }
 
@@ -88,8 +94,8 @@ void StudioDoc::copy_project_files(const fs::path& from, const fs::path& to,
     if (ec) throw Error(file_error(to.string(), "cannot create the folder: " + ec.message()));
     // Every file first (for the progress), the autosave left behind: it belongs to the original.
     std::vector<fs::path> files;
-    for (auto it = fs::recursive_directory_iterator(from, ec); !ec && it != fs::recursive_directory_iterator();
-         it.increment(ec)) {
+    for (auto it = fs::recursive_directory_iterator(from, ec);
+         !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
         const fs::path rel = it->path().lexically_relative(from);
         if (*rel.begin() == ".autosave") {
             if (it->is_directory()) it.disable_recursion_pending();
@@ -103,7 +109,8 @@ void StudioDoc::copy_project_files(const fs::path& from, const fs::path& to,
     if (ec) throw Error(file_error(from.string(), "cannot list the project: " + ec.message()));
     const int n = static_cast<int>(files.size());
     for (int i = 0; i < n; ++i) {
-        if (progress && !progress(i, n)) throw Error("save as cancelled; " + to.string() + " holds a partial copy");
+        if (progress && !progress(i, n))
+            throw Error("save as cancelled; " + to.string() + " holds a partial copy");
         fs::copy_file(from / files[i], to / files[i], fs::copy_options::overwrite_existing, ec);
         if (ec) throw Error(file_error((to / files[i]).string(), "cannot copy: " + ec.message()));
     }
@@ -141,7 +148,9 @@ bool StudioDoc::autosave_if_due(double now_s, double interval_s) {
     return true;
 }
 
-bool StudioDoc::has_newer_autosave() const { return m_newer_autosave; }
+bool StudioDoc::has_newer_autosave() const {
+    return m_newer_autosave;
+}
 
 void StudioDoc::restore_autosave() {
     if (!m_project) return;

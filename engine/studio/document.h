@@ -16,7 +16,7 @@
 namespace refocus {
 
 class StudioDoc {
-public:
+  public:
     bool is_open() const { return m_project != nullptr; }
     const Project& project() const { return *m_project; }
     Project& project() { return *m_project; }
@@ -48,12 +48,12 @@ public:
     // `interval_s` passed since the change. Returns true when it wrote.
     bool autosave_if_due(double now_s, double interval_s = 60.0);
     bool has_newer_autosave() const;  // found when the project was opened
-    void restore_autosave();           // takes the autosaved focus and edits (document dirty)
+    void restore_autosave();          // takes the autosaved focus and edits (document dirty)
     void discard_autosave();
 
     static fs::path autosave_dir(const fs::path& project_dir);
 
-private:
+  private:
     void load_work(const Project& from, const fs::path& edits_dir_project);
     void write_work(Project& to);
 

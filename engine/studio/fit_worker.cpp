@@ -11,18 +11,27 @@ namespace refocus {
 
 const char* state_name(FitWorker::State s) {
     switch (s) {
-        case FitWorker::State::Empty: return "no project";
-        case FitWorker::State::Preparing: return "preparing";
-        case FitWorker::State::Unfitted: return "not fitted";
-        case FitWorker::State::Ready: return "fitted";
-        case FitWorker::State::Fitting: return "fitting";
-        case FitWorker::State::Paused: return "paused";
-        case FitWorker::State::Failed: return "failed";
+        case FitWorker::State::Empty:
+            return "no project";
+        case FitWorker::State::Preparing:
+            return "preparing";
+        case FitWorker::State::Unfitted:
+            return "not fitted";
+        case FitWorker::State::Ready:
+            return "fitted";
+        case FitWorker::State::Fitting:
+            return "fitting";
+        case FitWorker::State::Paused:
+            return "paused";
+        case FitWorker::State::Failed:
+            return "failed";
     }
     return "?";
 }
 
-FitWorker::FitWorker() { m_thread = std::thread([this] { loop(); }); }
+FitWorker::FitWorker() {
+    m_thread = std::thread([this] { loop(); });
+}
 
 FitWorker::~FitWorker() {
     stop();
@@ -125,7 +134,8 @@ void FitWorker::run_job(const std::string& what, const Job& job) {
         std::lock_guard<std::mutex> lk(m_mutex);
         m_status.error = what + ": " + e.what();
         m_status.log.push_back("error: " + m_status.error);
-        if (m_status.state == State::Preparing) m_status.state = m_engine ? State::Ready : State::Failed;
+        if (m_status.state == State::Preparing)
+            m_status.state = m_engine ? State::Ready : State::Failed;
     }
     std::lock_guard<std::mutex> lk(m_mutex);
     m_status.busy = false;

@@ -20,7 +20,7 @@
 namespace refocus {
 
 class FitWorker {
-public:
+  public:
     enum class State { Empty, Preparing, Unfitted, Ready, Fitting, Paused, Failed };
 
     struct Status {
@@ -28,10 +28,10 @@ public:
         FitSnapshot snap;
         std::vector<FitSnapshot> history;  // one entry per step (thinned when long)
         std::vector<std::string> log;
-        std::string error;                 // last error (kept up to the next request)
-        bool busy = false;                 // a job is running (prepare, render, export)
+        std::string error;  // last error (kept up to the next request)
+        bool busy = false;  // a job is running (prepare, render, export)
         std::string busy_what;
-        double job_progress = 0.0;         // 0..1 of the running job when it reports one
+        double job_progress = 0.0;  // 0..1 of the running job when it reports one
     };
 
     FitWorker();
@@ -86,7 +86,7 @@ public:
     FitSettings settings() const;
     std::string project_dir() const;
 
-private:
+  private:
     void loop();
     void run_job(const std::string& what, const Job& job);
     void add_log(const std::string& line);

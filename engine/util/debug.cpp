@@ -27,7 +27,8 @@ void set_debug(const std::string& spec) {
     size_t start = 0;
     while (start <= spec.size()) {
         const size_t comma = spec.find(',', start);
-        const std::string item = spec.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+        const std::string item =
+            spec.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
         start = comma == std::string::npos ? spec.size() + 1 : comma + 1;
         if (item.empty()) continue;
         const size_t eq = item.find('=');
@@ -46,9 +47,13 @@ void set_debug(const std::string& spec) {
     }
 }
 
-void clear_debug() { active().clear(); }
+void clear_debug() {
+    active().clear();
+}
 
-bool debug_enabled(const std::string& what) { return active().count(what) != 0; }
+bool debug_enabled(const std::string& what) {
+    return active().count(what) != 0;
+}
 
 std::string debug_value(const std::string& what) {
     auto it = active().find(what);

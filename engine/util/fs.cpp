@@ -18,7 +18,9 @@
 namespace refocus {
 
 namespace {
-std::string errno_text() { return std::strerror(errno); }
+std::string errno_text() {
+    return std::strerror(errno);
+}
 
 long g_fault_after = -1;
 
@@ -104,7 +106,9 @@ void publish_dir(const fs::path& tmp, const fs::path& dest, const std::vector<st
     fsync_dir(dest.parent_path());
 }
 
-void simulate_disk_full_after(long bytes) { g_fault_after = bytes; }
+void simulate_disk_full_after(long bytes) {
+    g_fault_after = bytes;
+}
 
 void write_file_atomic(const fs::path& path, const std::string& bytes) {
     fs::path tmp = temp_sibling(path);
@@ -113,23 +117,24 @@ void write_file_atomic(const fs::path& path, const std::string& bytes) {
     size_t done = 0;
     while (done < bytes.size()) {
         size_t chunk = bytes.size() - done;
-        if (g_fault_after >= 0) chunk = std::min(chunk, size_t(std::max(0L, g_fault_after - long(done))));
+        if (g_fault_after >= 0)
+            chunk = std::min(chunk, size_t(std::max(0L, g_fault_after - long(done))));
         ssize_t n = chunk > 0 ? ::write(fd, bytes.data() + done, chunk) : (errno = ENOSPC, -1);
         if (n < 0) {
             if (errno == EINTR) continue;
             std::string why = errno_text();
             ::close(fd);
             ::unlink(tmp.c_str());
-            throw Error(file_error(path.string(), "write failed: " + why +
-                                                      " (the previous file is untouched)"));
+            throw Error(file_error(path.string(),
+                                   "write failed: " + why + " (the previous file is untouched)"));
         }
         done += static_cast<size_t>(n);
     }
     if (::fsync(fd) != 0 || ::close(fd) != 0) {
         std::string why = errno_text();
         ::unlink(tmp.c_str());
-        throw Error(
-            file_error(path.string(), "write failed: " + why + " (the previous file is untouched)"));
+        throw Error(file_error(path.string(),
+                               "write failed: " + why + " (the previous file is untouched)"));
     }
     commit_temp(tmp, path);
 }
