@@ -6,6 +6,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include <functional>
+
 #include "fit/fast_model.h"
 #include "fit/fit_engine.h"
 #include "session/fit_session.h"
@@ -217,4 +219,37 @@ TEST_CASE("cli: --list-settings, --set on fit and bench fit, --debug") {
             "' --set nope=1");
     CHECK(r.code != 0);
     CHECK(r.output.find("unknown setting 'nope'") != std::string::npos);
+}
+
+TEST_CASE(
+    "checkpoints: an edited or damaged checkpoint.json is refused as corrupt, naming the field") {
+    auto d = tiny_two_layer_data(9);
+    const fs::path dir = scratch_dir("checkpoint_corrupt");
+    FitOptions o;
+    o.iters = 10;
+    FitEngine e(d, o);
+    e.step();
+    e.save_checkpoint(dir);
+    const std::string good = read_text_file(dir / "checkpoint.json");
+    auto refused = [&](const std::function<void(nlohmann::json&)>& edit, const std::string& field) {
+        nlohmann::json j = nlohmann::json::parse(good);
+        edit(j);
+        write_file_atomic(dir / "checkpoint.json", j.dump());
+        FitEngine r(d, o);
+        CHECK_THROWS_WITH_AS(
+            r.load_checkpoint(dir),
+            doctest::Contains(
+                ("checkpoint.json: corrupt checkpoint: field '" + field + "'").c_str()),
+            Error);
+    };
+    refused([](nlohmann::json& j) { j["perm"] = {0, 99}; }, "perm");
+    refused([](nlohmann::json& j) { j["perm_pos"] = 7; }, "perm_pos");
+    refused([](nlohmann::json& j) { j["rng"] = "not a state"; }, "rng");
+    refused([](nlohmann::json& j) { j["step"] = -3; }, "step");
+    refused([](nlohmann::json& j) { j["elapsed_s"] = "soon"; }, "elapsed_s");
+    refused([](nlohmann::json& j) { j["tensors"] = "../../etc/passwd"; }, "tensors");
+    write_file_atomic(dir / "checkpoint.json", good);
+    FitEngine r(d, o);
+    CHECK_NOTHROW(r.load_checkpoint(dir));
+    CHECK(r.snapshot().step == 1);
 }

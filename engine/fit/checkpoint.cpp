@@ -5,6 +5,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cmath>
+#include <cstdint>
+#include <random>
 #include <sstream>
 
 #include "fit/fit_engine.h"
@@ -65,6 +68,51 @@ std::string archive_name(const json& j, const std::string& name) {
     if (j.contains("archive_names") && j["archive_names"].contains(name))
         return j["archive_names"][name].get<std::string>();
     return name;
+}
+
+// The fields load_checkpoint reads, checked before anything is restored: a checkpoint that was
+// edited or damaged is refused as corrupt, naming the file and the field, instead of failing
+// deep inside (an index out of range in the batch order, an RNG state that does not parse).
+void validate_checkpoint(const json& j, const fs::path& file, int64_t frames) {
+    auto bad = [&](const std::string& field, const std::string& why) {
+        return Error(file_error(file.string(), "corrupt checkpoint: field '" + field + "' " + why));
+    };
+    auto integer_in = [&](const char* key, int64_t lo, int64_t hi) {
+        if (!j.contains(key) || !j[key].is_number_integer()) throw bad(key, "must be an integer");
+        const int64_t v =
+            j[key].is_number_unsigned() && j[key].get<uint64_t>() > uint64_t(INT64_MAX)
+                ? INT64_MAX
+                : j[key].get<int64_t>();
+        if (v < lo || v > hi)
+            throw bad(key, "is " + j[key].dump() + ", out of " + std::to_string(lo) + ".." +
+                               std::to_string(hi));
+        return v;
+    };
+    const json& tensors = j.contains("tensors") ? j["tensors"] : json();
+    if (!tensors.is_string() || tensors.get<std::string>().empty() ||
+        tensors.get<std::string>().find('/') != std::string::npos ||
+        tensors.get<std::string>().find("..") != std::string::npos)
+        throw bad("tensors", "must name a file in the checkpoint's folder");
+    integer_in("step", 0, INT64_MAX / 2);
+    if (!j.contains("elapsed_s") || !j["elapsed_s"].is_number() ||
+        !std::isfinite(j["elapsed_s"].get<double>()) || j["elapsed_s"].get<double>() < 0)
+        throw bad("elapsed_s", "must be a finite number of seconds, at least 0");
+    if (!j.contains("rng") || !j["rng"].is_string()) throw bad("rng", "must be a string");
+    std::mt19937_64 probe;
+    std::istringstream rng(j["rng"].get<std::string>());
+    if (!(rng >> probe)) throw bad("rng", "is not a generator state");
+    if (!j.contains("perm") || !j["perm"].is_array() || j["perm"].size() > size_t(frames))
+        throw bad("perm", "must be a list of at most " + std::to_string(frames) + " frame indices");
+    for (const json& v : j["perm"])
+        if (!v.is_number_integer() || v.get<int64_t>() < 0 || v.get<int64_t>() >= frames)
+            throw bad("perm",
+                      "holds " + v.dump() + ", not a frame index 0.." + std::to_string(frames - 1));
+    integer_in("perm_pos", 0, int64_t(j["perm"].size()));
+    for (const char* key : {"loss", "reblur_psnr"})
+        if (j.contains(key) && !j[key].is_number()) throw bad(key, "must be a number");
+    if (j.contains("terms") && j["terms"].is_object())
+        for (const auto& [k, v] : j["terms"].items())
+            if (!v.is_number()) throw bad("terms." + k, "must be a number");
 }
 
 }  // namespace
@@ -149,6 +197,7 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
         throw Error(file_error(jf.string(), std::string("corrupt checkpoint: ") + e.what()));
     }
     migrate_checkpoint(j, jf);
+    validate_checkpoint(j, jf, m_data->frames);
     auto expect = [&](const char* key, const json& want) {
         if (!j.contains(key) || j[key] != want)
             throw Error(file_error(jf.string(), std::string("checkpoint field '") + key + "' is " +

@@ -79,9 +79,9 @@ Clip make_clip(const std::string& name, const std::string& size) {
 }
 
 // One fitted project shared by the export cases (a fit is the costly part).
-const Clip& fitted() {
-    static Clip c = [] {
-        Clip c = make_clip("robust_fitted");
+const Clip& fitted(const std::string& name) {
+    static Clip c = [&] {
+        Clip c = make_clip(name);
         RunResult r = cli_t("fit " + q(c.project.string()) + " --iters 2 --coc " +
                                 q((c.clip / "coc_%04d.exr").string()),
                             300);

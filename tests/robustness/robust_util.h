@@ -28,8 +28,9 @@ struct Clip {
     fs::path dir, clip, project;
 };
 Clip make_clip(const std::string& name, const std::string& size = "48x32");
-// One fitted project shared by the export cases (a fit is the costly part).
-const Clip& fitted();
+// One fitted project shared by a suite's export cases (a fit is the costly part); each suite
+// names its own, as suites run side by side.
+const Clip& fitted(const std::string& name = "robust_fitted");
 // An mp4 of a few frames.
 fs::path make_mp4(const fs::path& path);
 

@@ -219,7 +219,7 @@ void fuzz_checkpoints(const Clip& c, const fs::path& work, const json& base, Mut
 }  // namespace
 
 TEST_CASE("fuzzed project.json and checkpoint.json: no crash, no hang, one line naming the file") {
-    const Clip& c = fitted();
+    const Clip& c = fitted("fuzz_fitted");
     const fs::path work = scratch_dir("robust_fuzz");
     const json base = json::parse(read_text_file(c.project / "project.json"));
     Mutator mutate(20240538);
