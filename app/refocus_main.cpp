@@ -63,7 +63,8 @@ void print_help() {
         std::printf("  %-8s %s\n", p.name.c_str(), p.description.c_str());
     std::printf(
         "\nClips are video files (mp4, mov, mkv, avi) or image sequences: a folder, or a\n"
-        "printf pattern such as shot/frame_%%04d.exr (PNG, JPEG, TIFF, OpenEXR).\n"
+        "frame pattern with one %%d or %%0Nd, such as shot/frame_%%04d.exr (PNG, JPEG, TIFF,\n"
+        "OpenEXR).\n"
         "Any command takes --debug <what>[,<what>...] for diagnostics:");
     for (const auto& [name, help] : refocus::debug_names()) std::printf(" %s", name.c_str());
     std::printf("\n");
