@@ -12,6 +12,8 @@
 
 #include "fit/fit_engine.h"
 #include "util/error.h"
+#include "util/json_file.h"
+#include "util/validate.h"
 
 namespace refocus {
 
@@ -74,45 +76,34 @@ std::string archive_name(const json& j, const std::string& name) {
 // edited or damaged is refused as corrupt, naming the file and the field, instead of failing
 // deep inside (an index out of range in the batch order, an RNG state that does not parse).
 void validate_checkpoint(const json& j, const fs::path& file, int64_t frames) {
-    auto bad = [&](const std::string& field, const std::string& why) {
-        return Error(file_error(file.string(), "corrupt checkpoint: field '" + field + "' " + why));
-    };
-    auto integer_in = [&](const char* key, int64_t lo, int64_t hi) {
-        if (!j.contains(key) || !j[key].is_number_integer()) throw bad(key, "must be an integer");
-        const int64_t v =
-            j[key].is_number_unsigned() && j[key].get<uint64_t>() > uint64_t(INT64_MAX)
-                ? INT64_MAX
-                : j[key].get<int64_t>();
-        if (v < lo || v > hi)
-            throw bad(key, "is " + j[key].dump() + ", out of " + std::to_string(lo) + ".." +
-                               std::to_string(hi));
-        return v;
+    const std::string corrupt = file.string() + ": corrupt checkpoint";
+    auto field = [&](const std::string& key) { return corrupt + ": field '" + key + "'"; };
+    auto number = [&](const std::string& key) {  // NaN (refused below) when missing or not a number
+        return j.contains(key) && j[key].is_number() ? j[key].get<double>() : NAN;
     };
     const json& tensors = j.contains("tensors") ? j["tensors"] : json();
     if (!tensors.is_string() || tensors.get<std::string>().empty() ||
         tensors.get<std::string>().find('/') != std::string::npos ||
         tensors.get<std::string>().find("..") != std::string::npos)
-        throw bad("tensors", "must name a file in the checkpoint's folder");
-    integer_in("step", 0, INT64_MAX / 2);
-    if (!j.contains("elapsed_s") || !j["elapsed_s"].is_number() ||
-        !std::isfinite(j["elapsed_s"].get<double>()) || j["elapsed_s"].get<double>() < 0)
-        throw bad("elapsed_s", "must be a finite number of seconds, at least 0");
-    if (!j.contains("rng") || !j["rng"].is_string()) throw bad("rng", "must be a string");
+        json_field_error(corrupt, "tensors", "must name a file in the checkpoint's folder");
+    checked_int(field("step"), number("step"), 0, INT64_MAX / 2);
+    checked_range(field("elapsed_s"), number("elapsed_s"), 0, 1e12);
     std::mt19937_64 probe;
-    std::istringstream rng(j["rng"].get<std::string>());
-    if (!(rng >> probe)) throw bad("rng", "is not a generator state");
+    std::istringstream rng(j.contains("rng") && j["rng"].is_string() ? j["rng"].get<std::string>()
+                                                                     : "");
+    if (!(rng >> probe)) json_field_error(corrupt, "rng", "is not a generator state");
     if (!j.contains("perm") || !j["perm"].is_array() || j["perm"].size() > size_t(frames))
-        throw bad("perm", "must be a list of at most " + std::to_string(frames) + " frame indices");
+        json_field_error(corrupt, "perm",
+                         "must be a list of at most " + std::to_string(frames) + " frame indices");
     for (const json& v : j["perm"])
-        if (!v.is_number_integer() || v.get<int64_t>() < 0 || v.get<int64_t>() >= frames)
-            throw bad("perm",
-                      "holds " + v.dump() + ", not a frame index 0.." + std::to_string(frames - 1));
-    integer_in("perm_pos", 0, int64_t(j["perm"].size()));
-    for (const char* key : {"loss", "reblur_psnr"})
-        if (j.contains(key) && !j[key].is_number()) throw bad(key, "must be a number");
+        checked_int(field("perm") + " entry", v.is_number() ? v.get<double>() : NAN, 0, frames - 1);
+    checked_int(field("perm_pos"), number("perm_pos"), 0, int64_t(j["perm"].size()));
+    for (const char* key : {"loss", "reblur_psnr"})  // the last step's figures, shown on reopen
+        if (j.contains(key) && !j[key].is_number())
+            json_field_error(corrupt, key, "must be a number");
     if (j.contains("terms") && j["terms"].is_object())
         for (const auto& [k, v] : j["terms"].items())
-            if (!v.is_number()) throw bad("terms." + k, "must be a number");
+            if (!v.is_number()) json_field_error(corrupt, "terms." + k, "must be a number");
 }
 
 }  // namespace
@@ -190,12 +181,7 @@ bool FitEngine::maybe_checkpoint(const fs::path& dir) {
 
 void FitEngine::load_checkpoint(const fs::path& dir) {
     const fs::path jf = dir / "checkpoint.json";
-    json j;
-    try {
-        j = json::parse(read_text_file(jf));
-    } catch (const json::exception& e) {
-        throw Error(file_error(jf.string(), std::string("corrupt checkpoint: ") + e.what()));
-    }
+    json j = read_json_file(jf);  // depth bounded; errors name the file
     migrate_checkpoint(j, jf);
     validate_checkpoint(j, jf, m_data->frames);
     auto expect = [&](const char* key, const json& want) {

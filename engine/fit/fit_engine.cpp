@@ -1,21 +1,13 @@
 #include "fit/fit_engine.h"
 
 #include <torch/optim.h>
-#include <torch/serialize.h>
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
 
-#include <nlohmann/json.hpp>
-
 #include <cmath>
 #include <filesystem>
-#include <cstdlib>
-#include <sstream>
 
-#include "fit/fast_model.h"
 #include "fit/losses.h"
-#include "fit/paper_model.h"
-#include "fit/perframe.h"
 #include "radius/stack_coc.h"
 #include "io/tensor_image.h"
 #include "io/image_file.h"

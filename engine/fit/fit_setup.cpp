@@ -50,12 +50,10 @@ std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps
 // from: prep/stack_coc_%04d.exr and prep/stack_coc.json (written last) holding a key of its
 // inputs (prepare.json's content, the layer decision). Opening a fitted project, exporting and
 // the studio then reuse it; a new prepare or another decision recomputes it.
-// The radius.* settings shape the estimate: the key holds the ones that differ from the default.
+// The radius.* settings shape the estimate: the key holds those the user set ("/absolute" is
+// the default estimate's key, kept so that existing caches stay valid).
 std::string stack_key(const Project& project, const FitData& d, const FitSetupOptions& opts) {
-    StackCocOptions so;
-    apply_settings(opts.settings, so);
-    const std::string settings_key =
-        std::string(so.absolute ? "/absolute" : "/relative") + opts.settings.key("radius.");
+    const std::string settings_key = "/absolute" + opts.settings.key("radius.");
     const std::string prep = read_text_file(fs::path(prepare_dir(project)) / "prepare.json");
     // The radius is measured in the kernel's units: a pillbox's differs from the disk's.
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
