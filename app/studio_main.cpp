@@ -48,6 +48,7 @@ int main(int argc, char** argv) {
                 std::fprintf(stderr, "refocus-studio: --size needs WxH\n");
                 return 2;
             }
+            o.size_given = true;
         } else if (!a.empty() && a[0] == '-') {
             std::fprintf(stderr, "refocus-studio: unknown option %s\n", a.c_str());
             return 2;
@@ -56,6 +57,8 @@ int main(int argc, char** argv) {
         }
     }
     if (!o.screenshot.empty() && o.exit_after < 0) o.exit_after = 3;
+    // Scripts and screenshots start from the default layout, so that they come out the same.
+    o.remember_layout = o.script.empty() && o.screenshot.empty();
     try {
         refocus::init_threads();
         return refocus::run_studio(o);

@@ -8,8 +8,6 @@
 
 namespace refocus {
 
-namespace {
-// Linear → sRGB RGBA8 for display; a grey image shows grey.
 std::vector<unsigned char> to_rgba8(const Image& img) {
     std::vector<unsigned char> px(static_cast<size_t>(img.width) * img.height * 4, 255);
     for (size_t i = 0; i < static_cast<size_t>(img.width) * img.height; ++i)
@@ -20,10 +18,14 @@ std::vector<unsigned char> to_rgba8(const Image& img) {
         }
     return px;
 }
-}  // namespace
 
 void upload_texture(unsigned& tex, const Image& img, int& w, int& h) {
-    const auto px = to_rgba8(img);
+    upload_rgba8(tex, to_rgba8(img).data(), img.width, img.height);
+    w = img.width;
+    h = img.height;
+}
+
+void upload_rgba8(unsigned& tex, const unsigned char* px, int w, int h) {
     if (!tex) glGenTextures(1, &tex);
     glBindTexture(GL_TEXTURE_2D, tex);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
@@ -31,10 +33,7 @@ void upload_texture(unsigned& tex, const Image& img, int& w, int& h) {
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
     glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, img.width, img.height, 0, GL_RGBA, GL_UNSIGNED_BYTE,
-                 px.data());
-    w = img.width;
-    h = img.height;
+    glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, w, h, 0, GL_RGBA, GL_UNSIGNED_BYTE, px);
 }
 
 }  // namespace refocus

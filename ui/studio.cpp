@@ -13,6 +13,7 @@
 #include <cstdio>
 
 #include "io/image_file.h"
+#include "layout.h"
 #include "log_panel.h"
 #include "studio_app.h"
 #include "studio_script.h"
@@ -20,18 +21,22 @@
 
 namespace refocus {
 
-Studio::Studio(GLFWwindow* window, const StudioOptions& opts) : m_window(window), m_opts(opts) {
+Studio::Studio(GLFWwindow* window, GLFWwindow* offscreen, const StudioOptions& opts)
+    : m_window(window), m_opts(opts) {
     m_ctx.worker = std::make_unique<FitWorker>();
-    try {
-        m_ctx.gl = std::make_unique<GlPreview>();
-    } catch (const std::exception& e) {
-        m_ctx.gl_error = e.what();  // the refocused view says why it is off
-    }
+    const char* r = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+    m_ctx.renderer = std::make_unique<ViewRenderer>(*m_ctx.worker, offscreen, r ? r : "");
+    if (opts.remember_layout) m_ctx.layout = load_layout();
     m_atlas.set_edits(&m_ctx.doc.edits());
 }
 
 Studio::~Studio() {
-    m_ctx.worker.reset();  // checkpoints a running fit
+    if (m_opts.remember_layout) {
+        glfwGetWindowSize(m_window, &m_ctx.layout.window_w, &m_ctx.layout.window_h);
+        save_layout(m_ctx.layout);
+    }
+    m_ctx.renderer.reset();  // it asks the worker for frames: it goes first
+    m_ctx.worker.reset();    // checkpoints a running fit
     release_viewer(m_viewer);
 }
 
@@ -40,12 +45,16 @@ void Studio::after_open() {
     m_ctx.worker->open(m_ctx.doc.project());
     m_atlas.set_edits(&m_ctx.doc.edits());
     m_ctx.frame = std::clamp(m_ctx.frame, 0, m_ctx.source->frames() - 1);
+    m_ctx.renderer->open(m_ctx.doc.project().dir.string(), m_ctx.source->frames());
+    m_viewer.a.shown = m_viewer.b.shown = nullptr;
     m_ctx.view.reset();
     m_ctx.depth.reset();
+    m_ctx.scene = ViewScene{};
     m_ctx.depth_requested = false;
     m_ctx.atlas_version = m_ctx.edit_version = -1;
-    m_ctx.requested_frame = -1;
+    m_ctx.in_frame = m_ctx.out_frame = -1;
     m_ctx.view_dirty = m_viewer.slice.dirty = true;
+    m_ctx.view_current = false;
     reset_export_panel(m_export, m_ctx);
     load_fit_panel(m_fit, m_ctx.doc.project());
     glfwSetWindowTitle(m_window, ("Refocus Studio - " + m_ctx.doc.project().dir.string()).c_str());
@@ -149,12 +158,9 @@ void Studio::screenshot(const std::string& path) {
                            {"mode", v.mode->name},
                            {"image_rect", {v.img_x * s, v.img_y * s, v.img_w * s, v.img_h * s}},
                            {"longest_frame_ms", m_ctx.times.longest_frame_ms},
-                           {"longest_frame_during_fit_ms", m_ctx.times.longest_fit_frame_ms}};
+                           {"longest_frame_during_fit_ms", m_ctx.times.longest_fit_frame_ms},
+                           {"longest_busy_frame_ms", m_ctx.times.longest_busy_frame_ms}};
     write_file_atomic(path + ".json", meta.dump(2));
-}
-
-bool Studio::view_current() const {
-    return m_ctx.view_at_playhead() && !m_ctx.view_dirty && m_ctx.requested_frame < 0;
 }
 
 void Studio::end_frame_timing() {
@@ -162,8 +168,12 @@ void Studio::end_frame_timing() {
     const double ms = (glfwGetTime() - t.frame_start) * 1000.0;
     if (++t.frames_drawn <= 5) return;  // start-up: fonts, shader compilation
     t.longest_frame_ms = std::max(t.longest_frame_ms, ms);
-    if (m_ctx.worker->status().state == FitWorker::State::Fitting)
-        t.longest_fit_frame_ms = std::max(t.longest_fit_frame_ms, ms);
+    const bool fitting = m_ctx.worker->status().state == FitWorker::State::Fitting;
+    if (fitting) t.longest_fit_frame_ms = std::max(t.longest_fit_frame_ms, ms);
+    if (fitting || m_timeline.playing || m_export.running) {
+        t.longest_busy_frame_ms = std::max(t.longest_busy_frame_ms, ms);
+        ++t.busy_frames;
+    }
 }
 
 void Studio::poll_results() {
@@ -199,13 +209,13 @@ void Studio::poll_results() {
 
 void Studio::draw_side_panel() {
     const ImGuiViewport* vp = ImGui::GetMainViewport();
-    ImGui::SetNextWindowPos(
-        ImVec2(vp->WorkPos.x + vp->WorkSize.x - kSidePanelWidth, vp->WorkPos.y));
-    ImGui::SetNextWindowSize(ImVec2(kSidePanelWidth, vp->WorkSize.y));
+    const Layout::Rect r =
+        m_ctx.layout.side(vp->WorkPos.x, vp->WorkPos.y, vp->WorkSize.x, vp->WorkSize.y);
+    ImGui::SetNextWindowPos(ImVec2(r.x, r.y));
+    ImGui::SetNextWindowSize(ImVec2(r.w, r.h));
     ImGui::Begin("Panel", nullptr,
                  ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoCollapse |
                      ImGuiWindowFlags_NoTitleBar | ImGuiWindowFlags_NoSavedSettings);
-    if (!m_ctx.info.empty()) ImGui::TextDisabled("%s", m_ctx.info.c_str());
     if (ImGui::BeginTabBar("tabs")) {
         if (ImGui::BeginTabItem("Fit")) {
             draw_fit_panel(m_fit, m_ctx);
@@ -228,8 +238,67 @@ void Studio::draw_side_panel() {
     ImGui::End();
 }
 
+// The line along the window's bottom: what just happened, the fit's state, the renderer. It has
+// its own strip, so a message never moves the panels' widgets.
+void Studio::draw_status_line() {
+    const ImGuiViewport* vp = ImGui::GetMainViewport();
+    const Layout::Rect r =
+        m_ctx.layout.status(vp->WorkPos.x, vp->WorkPos.y, vp->WorkSize.x, vp->WorkSize.y);
+    ImGui::SetNextWindowPos(ImVec2(r.x, r.y));
+    ImGui::SetNextWindowSize(ImVec2(r.w, r.h));
+    ImGui::PushStyleVar(ImGuiStyleVar_WindowPadding, ImVec2(8, 4));
+    ImGui::Begin("##status", nullptr,
+                 ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoSavedSettings |
+                     ImGuiWindowFlags_NoBringToFrontOnFocus | ImGuiWindowFlags_NoFocusOnAppearing);
+    const FitWorker::Status st = m_ctx.worker->status();
+    ImGui::TextDisabled("%s", state_name(st.state));
+    if (m_ctx.source) {
+        ImGui::SameLine();
+        const int mode = wanted_modes(m_viewer)[0];
+        ImGui::TextDisabled("| %s | cached %d/%d | preview: %s", m_viewer.mode->label,
+                            m_ctx.renderer->cached_frames(mode), m_ctx.source->frames(),
+                            m_ctx.renderer->backend_name().c_str());
+    }
+    if (!m_ctx.info.empty()) {
+        ImGui::SameLine();
+        ImGui::TextUnformatted(("| " + m_ctx.info).c_str());
+        if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", m_ctx.info.c_str());
+    }
+    ImGui::End();
+    ImGui::PopStyleVar();
+}
+
+void Studio::step_to_key(int dir) {
+    int best = -1;
+    for (const auto& l : focus_lanes())
+        for (const Keyframe& k : (m_ctx.doc.focus().*(l.lane)).keys)
+            if ((dir > 0 ? k.frame > m_ctx.frame : k.frame < m_ctx.frame) &&
+                (best < 0 || (dir > 0 ? k.frame < best : k.frame > best)))
+                best = k.frame;
+    if (best >= 0) set_frame(best);
+}
+
+// Editors' transport keys: Space, J/K/L, ←/→ by a frame, Home/End, ↑/↓ to the previous/next
+// keyframe, I/O for the in and out points, Alt+X clears them.
+void Studio::handle_transport_keys() {
+    const ImGuiIO& io = ImGui::GetIO();
+    if (ImGui::IsKeyPressed(GLFW_KEY_SPACE, false)) toggle_playback(m_timeline);
+    if (ImGui::IsKeyPressed(GLFW_KEY_L, false)) shuttle(m_timeline, 1);
+    if (ImGui::IsKeyPressed(GLFW_KEY_J, false)) shuttle(m_timeline, -1);
+    if (ImGui::IsKeyPressed(GLFW_KEY_K, false)) shuttle(m_timeline, 0);
+    if (ImGui::IsKeyPressed(GLFW_KEY_LEFT)) set_frame(m_ctx.frame - 1);
+    if (ImGui::IsKeyPressed(GLFW_KEY_RIGHT)) set_frame(m_ctx.frame + 1);
+    if (ImGui::IsKeyPressed(GLFW_KEY_HOME, false)) set_frame(m_ctx.first_frame());
+    if (ImGui::IsKeyPressed(GLFW_KEY_END, false)) set_frame(m_ctx.last_frame());
+    if (ImGui::IsKeyPressed(GLFW_KEY_UP)) step_to_key(-1);
+    if (ImGui::IsKeyPressed(GLFW_KEY_DOWN)) step_to_key(1);
+    if (ImGui::IsKeyPressed(GLFW_KEY_I, false)) set_in_point(m_ctx, m_ctx.frame);
+    if (ImGui::IsKeyPressed(GLFW_KEY_O, false)) set_out_point(m_ctx, m_ctx.frame);
+    if (io.KeyAlt && ImGui::IsKeyPressed(GLFW_KEY_X, false)) m_ctx.in_frame = m_ctx.out_frame = -1;
+}
+
 // Shortcuts outside text fields: Ctrl+S / Ctrl+Shift+S / Ctrl+O / Ctrl+N / Ctrl+Q, Tab for the
-// atlas editor, the view modes' keys, and space / arrows for playback.
+// atlas editor, the view modes' keys, and the transport keys.
 void Studio::handle_keys() {
     ImGuiIO& io = ImGui::GetIO();
     if (io.WantTextInput) return;
@@ -247,11 +316,7 @@ void Studio::handle_keys() {
     if (!ctrl)
         for (const ViewModeInfo& m : view_modes())
             if (m.key && ImGui::IsKeyPressed(m.key)) set_mode(m);
-    if (m_ctx.source && !m_viewer.show_atlas) {
-        if (ImGui::IsKeyPressed(GLFW_KEY_SPACE)) toggle_playback(m_timeline);
-        if (ImGui::IsKeyPressed(GLFW_KEY_LEFT)) set_frame(m_ctx.frame - 1);
-        if (ImGui::IsKeyPressed(GLFW_KEY_RIGHT)) set_frame(m_ctx.frame + 1);
-    }
+    if (m_ctx.source && !m_viewer.show_atlas && !ctrl) handle_transport_keys();
 }
 
 void Studio::frame() {
@@ -261,7 +326,10 @@ void Studio::frame() {
         glfwSetWindowShouldClose(m_window, 0);
         request_close();
     }
-    poll_fit_output(m_viewer, m_atlas, m_ctx);
+    const int before = m_ctx.frame;
+    advance_playback(m_timeline, m_ctx);
+    if (!m_timeline.playing && before != m_ctx.frame) m_ctx.playback = PlaybackStats{};
+    poll_fit_output(m_viewer, m_atlas, m_ctx, m_timeline.playing);
     poll_results();
     draw_menu();
     if (auto click = draw_viewer(m_viewer, m_atlas, m_ctx)) {
@@ -272,6 +340,8 @@ void Studio::frame() {
     }
     draw_timeline(m_timeline, m_ctx);
     draw_side_panel();
+    draw_status_line();
+    drag_splitters(m_ctx.layout);
     draw_modals();
     if (m_ctx.doc.is_open())
         m_ctx.guarded([&] {
@@ -289,12 +359,20 @@ int run_studio(const StudioOptions& opts) {
     glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
     glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
     glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
-    GLFWwindow* window =
-        glfwCreateWindow(opts.width, opts.height, "Refocus Studio", nullptr, nullptr);
+    glfwWindowHint(GLFW_RESIZABLE, GLFW_TRUE);
+    Layout remembered = opts.remember_layout ? load_layout() : Layout{};
+    const int win_w = opts.size_given || !opts.remember_layout ? opts.width : remembered.window_w;
+    const int win_h = opts.size_given || !opts.remember_layout ? opts.height : remembered.window_h;
+    GLFWwindow* window = glfwCreateWindow(win_w, win_h, "Refocus Studio", nullptr, nullptr);
     if (!window) {
         glfwTerminate();
         throw Error("cannot create an OpenGL 3.3 window");
     }
+    glfwSetWindowSizeLimits(window, 800, 500, GLFW_DONT_CARE, GLFW_DONT_CARE);
+    // The viewer's renderer draws on a context of its own, in a window never shown.
+    glfwWindowHint(GLFW_VISIBLE, GLFW_FALSE);
+    GLFWwindow* offscreen = glfwCreateWindow(16, 16, "Refocus preview", nullptr, nullptr);
+    glfwDefaultWindowHints();
     glfwMakeContextCurrent(window);
     glfwSwapInterval(opts.script.empty() && opts.exit_after < 0 ? 1 : 0);
 
@@ -307,7 +385,7 @@ int run_studio(const StudioOptions& opts) {
 
     int code = 0;
     {
-        Studio studio(window, opts);
+        Studio studio(window, offscreen, opts);
         std::unique_ptr<StudioScript> script;
         if (!opts.script.empty()) {
             script = std::make_unique<StudioScript>(opts.script);
@@ -366,6 +444,7 @@ int run_studio(const StudioOptions& opts) {
     ImGui_ImplOpenGL3_Shutdown();
     ImGui_ImplGlfw_Shutdown();
     ImGui::DestroyContext();
+    if (offscreen) glfwDestroyWindow(offscreen);
     glfwDestroyWindow(window);
     glfwTerminate();
     return code;

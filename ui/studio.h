@@ -10,6 +10,8 @@ struct StudioOptions {
     int start_frame = 0;
     std::string script;  // a JSON list of actions to run, then exit (tests/gui/smoke.json)
     int width = 1280, height = 800;
+    bool size_given = false;      // --size: not the remembered window size
+    bool remember_layout = true;  // read and write the window's layout (layout.h)
 };
 
 // Runs the Refocus Studio window; returns the exit code.

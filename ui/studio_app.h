@@ -34,7 +34,8 @@ struct DialogState {
 
 class Studio {
   public:
-    Studio(GLFWwindow* window, const StudioOptions& opts);
+    // `offscreen`: a hidden window whose GL context the viewer's renderer takes (may be null).
+    Studio(GLFWwindow* window, GLFWwindow* offscreen, const StudioOptions& opts);
     ~Studio();
 
     // One UI frame: menus, panels, viewer.
@@ -66,7 +67,11 @@ class Studio {
 
     void set_error_public(const std::string& e) { m_ctx.error = e; }
     void end_frame_timing();
-    bool view_current() const;  // the viewer shows the playhead frame with the newest state
+    bool view_current() const { return m_ctx.view_current; }  // the playhead, newest scene
+    bool playing() const { return m_timeline.playing; }
+    void play(bool on) {
+        if (on != m_timeline.playing) toggle_playback(m_timeline);
+    }
     bool exporting() const { return m_export.running; }
     bool ingesting() const { return !m_ctx.ingest_dir.empty(); }
     bool saving_as() const { return !m_ctx.save_as_dir.empty(); }
@@ -84,7 +89,10 @@ class Studio {
     void draw_autosave_and_error();
     void ask_unsaved(DialogState::Pending what);
     void handle_keys();
-    void poll_results();  // export outcomes, ingested clips, Save As copies
+    void handle_transport_keys();
+    void draw_status_line();
+    void step_to_key(int direction);  // the playhead to the previous / next keyframe
+    void poll_results();              // export outcomes, ingested clips, Save As copies
     void after_open();
 
     GLFWwindow* m_window;

@@ -3,6 +3,7 @@
 #include <GLFW/glfw3.h>
 
 #include <algorithm>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 
@@ -137,7 +138,7 @@ std::optional<bool> StudioScript::project_step(Studio& st, const json& step, boo
             st.m_fit.budget_iters = f.value("iters", 0);
             st.m_fit.budget_minutes = f.value("minutes", 1.0f);
             st.start_fit(f.value("resume", false));
-            return false;
+            return !f.value("wait", true);  // "wait": false goes on while the fit runs
         }
         if (m_settle < 3) return false;  // let the worker pick the job up
         if (!worker_idle(st)) return false;
@@ -196,6 +197,29 @@ std::optional<bool> StudioScript::view_step(Studio& st, const json& step, bool f
             write_image_file(ts["save"].get<std::string>(), v.slice.image, PixelFormat::Png8);
         return true;
     }
+    if (step.contains("play")) return play_step(st, step["play"], first);
+    if (step.contains("preview_renderer")) {
+        const std::string b = step["preview_renderer"];
+        if (b != "auto" && b != "gpu" && b != "cpu")
+            throw Error("preview_renderer is auto, gpu or cpu, not '" + b + "'");
+        if (first)
+            st.m_ctx.renderer->set_backend(b == "gpu"   ? ViewRenderer::Backend::Gpu
+                                           : b == "cpu" ? ViewRenderer::Backend::Cpu
+                                                        : ViewRenderer::Backend::Auto);
+        return m_settle > 2;
+    }
+    if (step.contains("window_size")) {
+        // As a user drags the window's corner; the panels follow the new size.
+        if (first)
+            glfwSetWindowSize(st.m_window, step["window_size"].at(0), step["window_size"].at(1));
+        return m_settle > 4;
+    }
+    if (step.contains("layout")) {
+        const json& l = step["layout"];
+        st.m_ctx.layout.side_w = l.value("side_width", st.m_ctx.layout.side_w);
+        st.m_ctx.layout.timeline_h = l.value("timeline_height", st.m_ctx.layout.timeline_h);
+        return m_settle > 2;
+    }
     if (step.contains("split")) {
         if (first) {
             const json& sp = step["split"];
@@ -207,6 +231,42 @@ std::optional<bool> StudioScript::view_step(Studio& st, const json& step, bool f
         return st.view_current();
     }
     return std::nullopt;
+}
+
+// Plays `frames` frames from `from` as a user's Space does, after the renderer cached the clip
+// when `cache` (as an editor's render cache); prints what was shown for scripts to read.
+bool StudioScript::play_step(Studio& st, const json& p, bool first) {
+    StudioContext& ctx = st.m_ctx;
+    if (first) {
+        st.play(false);
+        st.set_frame(p.value("from", 0));
+        m_play_started = false;
+    }
+    if (!m_play_started) {
+        if (first) m_step_clock = glfwGetTime();
+        if (p.value("cache", true)) {
+            for (int m : wanted_modes(st.m_viewer))
+                if (ctx.renderer->cached_frames(m) < ctx.source->frames()) return false;
+            if (!st.view_current()) return false;
+        }
+        ctx.playback = PlaybackStats{};
+        st.play(true);
+        m_play_started = true;
+        std::printf("playback: cached in %.1f s (%s, %.0f ms a frame)\n",
+                    glfwGetTime() - m_step_clock, ctx.renderer->backend_name().c_str(),
+                    ctx.renderer->last_full_ms(wanted_modes(st.m_viewer)[0]));
+        return false;
+    }
+    if (ctx.playback.played < p.value("frames", ctx.source->frames())) return false;
+    st.play(false);
+    std::printf("playback: %zu distinct frames of %d\n", ctx.playback.pictures.size(),
+                ctx.playback.played);
+    std::fflush(stdout);
+    const int min = p.value("min_distinct", 0);
+    if (static_cast<int>(ctx.playback.pictures.size()) < min)
+        throw Error("playback showed " + std::to_string(ctx.playback.pictures.size()) +
+                    " distinct pictures, expected at least " + std::to_string(min));
+    return true;
 }
 
 // key, focus_click, track_click, paint, export.
@@ -286,14 +346,54 @@ std::optional<bool> StudioScript::check_step(Studio& st, const json& step, bool)
             throw Error("expected the project to be fitted");
         if (e.contains("track") && e["track"].get<bool>() != ctx.doc.focus().track.has_value())
             throw Error("expected a tracked focus point");
+        if (e.contains("autosave_offered") &&
+            e["autosave_offered"].get<bool>() != ctx.doc.has_newer_autosave())
+            throw Error(std::string("expected ") +
+                        (e["autosave_offered"].get<bool>() ? "" : "no ") +
+                        "autosave to be offered");
+        if (e.contains("modified") && e["modified"].get<bool>() != ctx.doc.dirty())
+            throw Error(std::string("expected the project ") +
+                        (e["modified"].get<bool>() ? "modified" : "unmodified"));
         return true;
     }
     if (step.contains("stats")) {
         const FrameTimes& t = st.times();
         json s = {{"longest_frame_ms", t.longest_frame_ms},
                   {"longest_frame_during_fit_ms", t.longest_fit_frame_ms},
-                  {"last_preview_ms", t.last_preview_ms}};
+                  {"longest_busy_frame_ms", t.longest_busy_frame_ms},
+                  {"busy_frames", t.busy_frames},
+                  {"frames", t.frames_drawn}};
         write_file_atomic(step["stats"].get<std::string>(), s.dump(2));
+        // Frames drawn while a fit, playback or an export ran; then every frame of the run.
+        std::printf("longest UI frame: %.1f ms\n", t.longest_busy_frame_ms);
+        std::printf("longest UI frame of the whole run: %.1f ms (%d frames, %d busy)\n",
+                    t.longest_frame_ms, t.frames_drawn, t.busy_frames);
+        std::fflush(stdout);
+        return true;
+    }
+    if (step.contains("autosave")) {
+        // What the studio does a minute after a change, now.
+        if (!ctx.doc.autosave_if_due(glfwGetTime(), 0.0)) throw Error("nothing to autosave");
+        return true;
+    }
+    if (step.contains("crash")) {
+        // Dies as under kill -9: no destructor runs, nothing is saved or checkpointed.
+        std::fflush(stdout);
+        std::raise(SIGKILL);
+    }
+    if (step.contains("touch")) {
+        // A file for a test harness to wait on (it kills the studio when it appears).
+        write_file_atomic(step["touch"].get<std::string>(), "");
+        return true;
+    }
+    if (step.contains("wait_fitting")) {
+        return ctx.worker->status().state == FitWorker::State::Fitting &&
+               ctx.worker->status().snap.step >= step["wait_fitting"].get<int>();
+    }
+    if (step.contains("restore_autosave")) {
+        if (!ctx.doc.has_newer_autosave()) throw Error("no autosave was offered");
+        ctx.doc.restore_autosave();
+        ctx.view_dirty = true;
         return true;
     }
     if (step.contains("quit")) return true;

@@ -16,7 +16,13 @@
 //   for it; "save" writes it, x → column, y → frame)   {"time_slice": false}  (hides it)
 //   {"save": true}  {"save_as": dir}  {"reopen": true}  {"screenshot": path}
 //   {"expect": {"keys": {"focus": n, ...}, "edits": true|false, "fitted": true}}
-//   {"stats": path}  (UI frame times as JSON)   {"quit": true}
+//   {"stats": path}  (UI frame times as JSON; prints "longest UI frame: <ms> ms")
+//   {"play": {"from": n, "frames": n, "cache": true, "min_distinct": n}}  (prints "playback:
+//   <distinct> distinct frames of <shown>")   {"window_size": [w, h]}
+//   {"layout": {"side_width": w, "timeline_height": h}}   {"autosave": true}  {"touch": path}
+//   {"wait_fitting": step}  {"restore_autosave": true}  {"crash": true} (SIGKILL, as kill -9)
+//   {"fit": {..., "wait": false}} starts the fit and goes on
+//   {"expect": {..., "autosave_offered": b, "modified": b}}   {"quit": true}
 #include <nlohmann/json.hpp>
 
 #include <optional>
@@ -40,6 +46,7 @@ class StudioScript {
     std::optional<bool> view_step(Studio& st, const nlohmann::json& step, bool first);
     std::optional<bool> edit_step(Studio& st, const nlohmann::json& step, bool first);
     std::optional<bool> check_step(Studio& st, const nlohmann::json& step, bool first);
+    bool play_step(Studio& st, const nlohmann::json& play, bool first);
     bool worker_idle(Studio& st) const;  // throws the fit's error when it failed
     std::string m_path;
     nlohmann::json m_steps;
@@ -47,6 +54,8 @@ class StudioScript {
     bool m_started = false;
     double m_step_start = 0.0;
     int m_settle = 0;
+    bool m_play_started = false;
+    double m_step_clock = 0.0;
 };
 
 }  // namespace refocus

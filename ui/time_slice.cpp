@@ -50,6 +50,23 @@ void post_output_slice(StudioContext& ctx, std::shared_ptr<TimeSliceState::Job> 
         job->done = true;
     });
 }
+// The input's slice: one row of every frame of the cache, read on the worker (file I/O stays
+// off the UI thread).
+void post_input_slice(StudioContext& ctx, std::shared_ptr<TimeSliceState::Job> job, int row) {
+    const int w = ctx.source->width(), n = ctx.source->frames();
+    ctx.worker->post("time slice", [job, row, w, n](FitEngine*, const Project& project) {
+        Image s(w, n, 3);
+        for (int t = 0; t < n; ++t) {
+            const Image f = project.read_frame(t);
+            for (int x = 0; x < w; ++x)
+                for (int c = 0; c < 3; ++c)
+                    s.at(x, t, c) = f.at(x, row, std::min(c, f.channels - 1));
+        }
+        std::lock_guard<std::mutex> lk(job->mutex);
+        job->image = std::move(s);
+        job->done = true;
+    });
+}
 }  // namespace
 
 void rebuild_time_slice(TimeSliceState& s, StudioContext& ctx, bool output, bool refocus) {
@@ -63,23 +80,13 @@ void rebuild_time_slice(TimeSliceState& s, StudioContext& ctx, bool output, bool
     s.dirty = false;
     if (key == s.key) return;
     s.key = key;
-    if (!output) {
-        Image img(w, n, 3);
-        for (int t = 0; t < n; ++t) {
-            Image f = ctx.source->linear(t);
-            for (int x = 0; x < w; ++x)
-                for (int c = 0; c < 3; ++c)
-                    img.at(x, t, c) = f.at(x, s.row, std::min(c, f.channels - 1));
-        }
-        upload_texture(s.tex, img, s.tex_w, s.tex_h);
-        s.image = std::move(img);
-        s.label = "input";
-        return;
-    }
     auto job = std::make_shared<TimeSliceState::Job>();
     job->key = key;
     s.job = job;
-    post_output_slice(ctx, job, s.row, refocus ? ctx.depth : nullptr);
+    if (output)
+        post_output_slice(ctx, job, s.row, refocus ? ctx.depth : nullptr);
+    else
+        post_input_slice(ctx, job, s.row);
 }
 
 void poll_time_slice(TimeSliceState& s) {
@@ -89,7 +96,9 @@ void poll_time_slice(TimeSliceState& s) {
     if (s.job->key == s.key) {
         upload_texture(s.tex, s.job->image, s.tex_w, s.tex_h);
         s.image = std::move(s.job->image);
-        s.label = s.key.find("/refocus/") != std::string::npos ? "refocused" : "sharp";
+        s.label = s.key.find("/refocus/") != std::string::npos ? "refocused"
+                  : s.key.find("/sharp/") != std::string::npos ? "sharp"
+                                                               : "input";
     }
     s.job.reset();
 }

@@ -1,14 +1,10 @@
 #include "view_modes.h"
 
-#include <GLFW/glfw3.h>
-
 #include <algorithm>
 #include <cmath>
 
-#include "studio_context.h"
 #include "synth/synth.h"
 #include "util/error.h"
-#include "viewer_panel.h"
 
 namespace refocus {
 
@@ -22,8 +18,8 @@ Image grey_to_rgb(const Image& g, float scale = 1.0f) {
     return out;
 }
 
-Image black(StudioContext& ctx) {
-    return Image(ctx.source->width(), ctx.source->height(), 3, 0.0f);
+Image black(const ModeInput& in) {
+    return Image(in.input.width, in.input.height, 3, 0.0f);
 }
 
 // The lens's gather window follows the largest radius this frame can have: the picture is the
@@ -43,70 +39,40 @@ void bound_lens_radius(PreviewLens& lens, const DepthModel& depth, int frame) {
     }
 }
 
-// The GLSL preview of the fit's layers at the playhead: sharp, or through the keyed lens.
-Image preview_image(StudioContext& ctx, bool refocus) {
-    if (!ctx.gl) throw Error("the GLSL preview is unavailable: " + ctx.gl_error);
-    const FrameMaps& m = ctx.view->maps;
-    const int64_t ev = ctx.edits_version();
-    if (ev != ctx.edit_version) {
-        // Edited atlases (paper Fig. 1): the composite pass samples them through every frame's UV.
-        Image bg = ctx.doc.edits().bg.result();
-        Image fg = m.fg.empty() ? Image() : ctx.doc.edits().fg.result();
-        if (bg.empty()) return m.sharp;  // atlases not received yet
-        ctx.gl->set_atlases(bg, fg);
-        ctx.edit_version = ev;
-    }
-    ctx.gl->set_frame(m.uv_bg, m.uv_fg, m.alpha);
-    PreviewLens lens;
-    if (refocus) {
-        lens = ctx.doc.focus().lens_at(ctx.frame, ctx.depth.get());
-        if (ctx.depth) {
-            ctx.gl->set_depth(ctx.depth->frame_depth(ctx.frame, m.uv_bg, m.uv_fg));
-            bound_lens_radius(lens, *ctx.depth, ctx.frame);
-        }
-    }
-    const double t0 = glfwGetTime();
-    ctx.gl->render(lens);
-    Image out = ctx.gl->read_result();  // waits for the GPU: the render's full cost
-    ctx.times.last_preview_ms = (glfwGetTime() - t0) * 1000.0;
-    return out;
+// The fit's layers at the frame: sharp, or through the keyed lens (radii in px scale with the
+// picture).
+Image preview_image(const ModeInput& in, bool refocus) {
+    const FrameMaps& m = in.view->maps;
+    const ViewScene& s = in.scene;
+    if (!refocus || !s.depth) return in.preview.render(m, s.edits, nullptr, PreviewLens{});
+    PreviewLens lens = s.focus.lens_at(in.frame, s.depth.get());
+    bound_lens_radius(lens, *s.depth, in.frame);
+    lens.aperture *= in.scale;
+    lens.max_radius = std::max(1.0, std::ceil(lens.max_radius * in.scale));
+    const PreviewDepth d = s.depth->frame_depth(in.frame, m.uv_bg, m.uv_fg);
+    return in.preview.render(m, s.edits, &d, lens);
 }
 
-Image render_input(const ViewerState&, StudioContext& ctx) {
-    return ctx.source->linear(ctx.frame);
+Image render_input(const ModeInput& in) {
+    return in.input;
 }
 
-Image render_sharp(const ViewerState& v, StudioContext& ctx) {
-    if (!ctx.view) return render_input(v, ctx);
-    return preview_image(ctx, false);
+Image render_sharp(const ModeInput& in) {
+    return in.view ? preview_image(in, false) : in.input;
 }
 
-Image render_refocused(const ViewerState& v, StudioContext& ctx) {
-    if (!ctx.view) return render_input(v, ctx);
-    return preview_image(ctx, ctx.depth != nullptr);  // sharp until the depth is fitted
+Image render_refocused(const ModeInput& in) {
+    return in.view ? preview_image(in, true) : in.input;  // sharp until the depth is fitted
 }
 
-Image render_split(const ViewerState& v, StudioContext& ctx) {
-    Image a = v.split_a->render(v, ctx), b = v.split_b->render(v, ctx);
-    if (!a.same_shape(b)) return a;
-    const int cut = static_cast<int>(v.split * a.width);
-    for (int y = 0; y < a.height; ++y)
-        for (int x = cut; x < a.width; ++x)
-            for (int c = 0; c < 3; ++c) a.at(x, y, c) = b.at(x, y, c);
-    for (int y = 0; y < a.height && cut < a.width; ++y)
-        for (int c = 0; c < 3; ++c) a.at(cut, y, c) = 1.0f;  // the wipe line
-    return a;
+Image render_radius(const ModeInput& in) {
+    return in.view ? coc_heatmap(in.view->radius, 12.0 * in.scale) : in.input;
 }
 
-Image render_radius(const ViewerState& v, StudioContext& ctx) {
-    if (!ctx.view) return render_input(v, ctx);
-    return coc_heatmap(ctx.view->radius, 12.0);
-}
-
-Image render_depth(const ViewerState&, StudioContext& ctx) {
-    if (!ctx.view || !ctx.depth) return black(ctx);
-    const FrameMaps& m = ctx.view->maps;
-    Image g = ctx.depth->depth_map(ctx.frame, m.uv_bg, m.uv_fg, m.alpha);
+Image render_depth(const ModeInput& in) {
+    if (!in.view || !in.scene.depth) return black(in);
+    const FrameMaps& m = in.view->maps;
+    Image g = in.scene.depth->depth_map(in.frame, m.uv_bg, m.uv_fg, m.alpha);
     float lo = 1e30f, hi = -1e30f;
     for (float v : g.pixels) lo = std::min(lo, v), hi = std::max(hi, v);
     for (size_t i = 0; i < g.pixels.size(); ++i)
@@ -114,23 +80,28 @@ Image render_depth(const ViewerState&, StudioContext& ctx) {
     return coc_heatmap(g, 1.0);
 }
 
-Image render_alpha(const ViewerState&, StudioContext& ctx) {
-    if (!ctx.view || ctx.view->maps.alpha.empty()) return black(ctx);
-    return grey_to_rgb(ctx.view->maps.alpha);
+Image render_alpha(const ModeInput& in) {
+    if (!in.view || in.view->maps.alpha.empty()) return black(in);
+    return grey_to_rgb(in.view->maps.alpha);
 }
 
 }  // namespace
 
 const std::vector<ViewModeInfo>& view_modes() {
-    // name, label, key, needs_fit, refocused, wipe, render
+    // name, label, tooltip, key, needs_fit, refocused, wipe, render
     static const std::vector<ViewModeInfo> modes = {
-        {"input", "Input", 0, false, false, false, render_input},
-        {"sharp", "Sharp", 0, true, false, false, render_sharp},
-        {"refocused", "Refocused", 0, true, true, false, render_refocused},
-        {"split", "Split", 0, true, false, true, render_split},
-        {"radius", "Radius", 0, true, false, false, render_radius},
-        {"depth", "Depth", 0, true, false, false, render_depth},
-        {"alpha", "Alpha", 0, true, false, false, render_alpha},
+        {"input", "Input", "The clip as it was shot", 0, false, false, false, render_input},
+        {"sharp", "Sharp", "The all-in-focus plate the fit recovered", 0, true, false, false,
+         render_sharp},
+        {"refocused", "Refocused", "The sharp plate through the keyed lens (Focus tab)", 0, true,
+         true, false, render_refocused},
+        {"split", "Split", "Two modes side by side; drag the line or the wipe slider", 0, true,
+         false, true, nullptr},
+        {"radius", "Radius", "The blur radius the fit explains each pixel with (px)", 0, true,
+         false, false, render_radius},
+        {"depth", "Depth", "The fitted inverse depth, near is bright", 0, true, false, false,
+         render_depth},
+        {"alpha", "Alpha", "The foreground layer's matte", 0, true, false, false, render_alpha},
     };
     return modes;
 }
@@ -142,6 +113,10 @@ const ViewModeInfo& view_mode(const std::string& name) {
         names += (names.empty() ? "" : ", ") + std::string(m.name);
     }
     throw Error("unknown view mode '" + name + "' (" + names + ")");
+}
+
+int view_mode_index(const ViewModeInfo& m) {
+    return static_cast<int>(&m - view_modes().data());
 }
 
 }  // namespace refocus

@@ -39,17 +39,20 @@ void draw_mode_bar(ViewerState& v, StudioContext& ctx) {
     const auto& modes = view_modes();
     for (size_t i = 0; i < modes.size(); ++i) {
         if (i) ImGui::SameLine();
-        if (ImGui::RadioButton(modes[i].label, v.mode == &modes[i])) {
-            v.mode = &modes[i];
-            ctx.view_dirty = true;
-            refresh_view(v, ctx);
-        }
+        if (ImGui::RadioButton(modes[i].label, v.mode == &modes[i]))
+            set_view_mode(v, ctx, modes[i]);
+        if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", modes[i].tooltip);
     }
     ImGui::SameLine();
     ImGui::SetNextItemWidth(110);
     ImGui::SliderFloat("zoom", &v.zoom, 0.0f, 8.0f, v.zoom == 0 ? "fit" : "%.2fx");
+    if (ImGui::IsItemHovered()) ImGui::SetTooltip("0 fits the window; the mouse wheel zooms too");
     ImGui::SameLine();
     if (ImGui::Checkbox("time slice", &v.slice.on)) v.slice.dirty = true;
+    if (ImGui::IsItemHovered())
+        ImGui::SetTooltip(
+            "One image row over all frames: flicker shows as streaks. Click the "
+            "image to pick the row");
     if (!v.mode->wipe) return;
     std::vector<const char*> labels;
     for (const ViewModeInfo& m : modes) labels.push_back(m.label);
@@ -58,16 +61,19 @@ void draw_mode_bar(ViewerState& v, StudioContext& ctx) {
         b = static_cast<int>(v.split_b - modes.data());
     ImGui::SetNextItemWidth(110);
     bool ch = ImGui::Combo("left", &a, labels.data(), n);
+    if (ImGui::IsItemHovered()) ImGui::SetTooltip("The mode left of the wipe");
     ImGui::SameLine();
     ImGui::SetNextItemWidth(110);
     ch |= ImGui::Combo("right", &b, labels.data(), n);
+    if (ImGui::IsItemHovered()) ImGui::SetTooltip("The mode right of the wipe");
     ImGui::SameLine();
     ImGui::SetNextItemWidth(160);
-    ch |= ImGui::SliderFloat("wipe", &v.split, 0.0f, 1.0f);
+    ImGui::SliderFloat("wipe", &v.split, 0.0f, 1.0f);
+    if (ImGui::IsItemHovered())
+        ImGui::SetTooltip("The wipe's place; dragging it re-renders nothing");
     if (ch && !modes[a].wipe && !modes[b].wipe) {
         v.split_a = &modes[a];
         v.split_b = &modes[b];
-        refresh_view(v, ctx);
     }
 }
 
@@ -113,23 +119,43 @@ std::optional<ViewerClick> hover_image(ViewerState& v, StudioContext& ctx) {
 
 // The image, centred, at the zoom; returns a click while a pick is armed.
 std::optional<ViewerClick> draw_image(ViewerState& v, StudioContext& ctx, ImVec2 avail) {
-    const float scale =
-        v.zoom > 0 ? v.zoom : std::min(avail.x / v.tex_w, std::max(avail.y, 1.0f) / v.tex_h);
-    const ImVec2 isz(v.tex_w * scale, v.tex_h * scale);
+    const float fw = static_cast<float>(ctx.source->width()),
+                fh = static_cast<float>(ctx.source->height());
+    const float scale = v.zoom > 0 ? v.zoom : std::min(avail.x / fw, std::max(avail.y, 1.0f) / fh);
+    const ImVec2 isz(fw * scale, fh * scale);
     ImGui::BeginChild("image", avail, false,
                       ImGuiWindowFlags_HorizontalScrollbar | ImGuiWindowFlags_NoScrollWithMouse);
     const ImVec2 cur = ImGui::GetCursorScreenPos(), region = ImGui::GetContentRegionAvail();
     ImGui::SetCursorScreenPos(ImVec2(cur.x + std::max(0.0f, (region.x - isz.x) * 0.5f),
                                      cur.y + std::max(0.0f, (region.y - isz.y) * 0.5f)));
     const ImVec2 ip = ImGui::GetCursorScreenPos();
-    ImGui::Image(reinterpret_cast<ImTextureID>(static_cast<intptr_t>(v.tex)), isz);
+    auto tex_id = [](unsigned t) {
+        return reinterpret_cast<ImTextureID>(static_cast<intptr_t>(t));
+    };
+    ImGui::Image(tex_id(v.a.tex), isz);
     v.img_x = ip.x, v.img_y = ip.y, v.img_w = isz.x, v.img_h = isz.y;
+    if (v.mode->wipe && v.b.tex) {
+        // Both sides are pictures of their own: moving the wipe only moves where they are cut.
+        const float cut = ip.x + v.split * isz.x;
+        ImDrawList* dl = ImGui::GetWindowDrawList();
+        dl->AddImage(tex_id(v.b.tex), ImVec2(cut, ip.y), ImVec2(ip.x + isz.x, ip.y + isz.y),
+                     ImVec2(v.split, 0), ImVec2(1, 1));
+        dl->AddLine(ImVec2(cut, ip.y), ImVec2(cut, ip.y + isz.y), IM_COL32(255, 255, 255, 255));
+        if (ImGui::IsItemHovered() && std::abs(ImGui::GetMousePos().x - cut) < 6.0f)
+            ImGui::SetMouseCursor(ImGuiMouseCursor_ResizeEW);
+        if (ImGui::IsItemClicked(0) && v.pick == ViewerState::Pick::None &&
+            std::abs(ImGui::GetMousePos().x - cut) < 6.0f)
+            v.dragging_wipe = true;
+        if (!ImGui::IsMouseDown(0)) v.dragging_wipe = false;
+        if (v.dragging_wipe)
+            v.split = std::clamp((ImGui::GetMousePos().x - ip.x) / isz.x, 0.0f, 1.0f);
+    }
     if (ImGui::IsWindowHovered()) zoom_and_pan(v, scale);
     std::optional<ViewerClick> click;
     if (ImGui::IsItemHovered()) click = hover_image(v, ctx);
     if (v.slice.on) {
         // The row the slice is taken from.
-        const float ry = ip.y + (v.slice.row + 0.5f) * isz.y / v.tex_h;
+        const float ry = ip.y + (v.slice.row + 0.5f) * isz.y / fh;
         ImGui::GetWindowDrawList()->AddLine(ImVec2(ip.x, ry), ImVec2(ip.x + isz.x, ry),
                                             IM_COL32(255, 200, 0, 160));
     }
@@ -164,16 +190,30 @@ bool draw_placeholder(StudioContext& ctx) {
 void set_view_mode(ViewerState& v, StudioContext& ctx, const ViewModeInfo& mode) {
     v.mode = &mode;
     v.show_atlas = false;
-    ctx.view_dirty = true;
+    ctx.view_current = false;
 }
 
-void poll_fit_output(ViewerState& v, AtlasPanel& atlas, StudioContext& ctx) {
-    if (!ctx.doc.is_open()) return;
+std::vector<int> wanted_modes(const ViewerState& v) {
+    if (v.mode->wipe) return {view_mode_index(*v.split_a), view_mode_index(*v.split_b)};
+    return {view_mode_index(*v.mode)};
+}
+
+namespace {
+
+// Takes what the worker delivered (atlases, depth) and asks for what comes next. Returns true
+// when the scene the renderer draws changed.
+bool poll_worker(AtlasPanel& atlas, StudioContext& ctx) {
     const FitWorker::Status st = ctx.worker->status();
     const bool fitted = st.state == FitWorker::State::Ready ||
                         st.state == FitWorker::State::Fitting ||
                         st.state == FitWorker::State::Paused;
-    if (!fitted) return;
+    bool changed = false;
+    if (fitted != ctx.scene.fitted) {
+        ctx.scene.fitted = fitted;
+        ++ctx.scene.maps_generation;
+        changed = true;
+    }
+    if (!fitted) return changed;
     const double now = glfwGetTime();
     // Atlases: on every version change when idle, at most every 2 s while fitting.
     const bool fitting = st.state == FitWorker::State::Fitting;
@@ -182,22 +222,12 @@ void poll_fit_output(ViewerState& v, AtlasPanel& atlas, StudioContext& ctx) {
         ctx.last_refresh_request = now;
         ctx.atlas_version = st.snap.atlas_version;
         ctx.worker->request_atlases();
-        ctx.requested_frame = -1;  // the frame must be rendered again too
-        ctx.view_dirty = true;
     }
     if (auto a = ctx.worker->take_atlases()) {
         atlas.set_bases(a->bg, a->fg);
-        ctx.edit_version = -1;  // re-upload to the preview
-        ctx.view_dirty = true;
-    }
-    if (ctx.view_dirty && ctx.requested_frame != ctx.frame) {
-        ctx.worker->request_frame(ctx.frame);
-        ctx.requested_frame = ctx.frame;
-    }
-    if (auto f = ctx.worker->take_frame()) {
-        ctx.view = std::move(*f);
-        if (ctx.view->t == ctx.requested_frame) ctx.requested_frame = -1;
-        if (ctx.view_at_playhead()) refresh_view(v, ctx);
+        ++ctx.scene.maps_generation;  // the frames' layers come from the new atlases
+        ctx.edit_version = -1;
+        changed = true;
     }
     // Depth: needed by refocus, depth view, click-to-focus; fitted once per checkpoint.
     if (!ctx.depth_requested && !fitting) {
@@ -207,33 +237,63 @@ void poll_fit_output(ViewerState& v, AtlasPanel& atlas, StudioContext& ctx) {
     auto d = ctx.worker->depth();
     if (d != ctx.depth) {
         ctx.depth = d;
-        ctx.view_dirty = true;
-        if (ctx.view_at_playhead()) refresh_view(v, ctx);
+        changed = true;
     }
     if (!fitting && st.snap.atlas_version != ctx.atlas_version) ctx.depth_requested = false;
-    if (ctx.edit_version != ctx.edits_version()) {
-        ctx.view_dirty = true;
-        if (ctx.view_at_playhead()) refresh_view(v, ctx);
-    }
+    return changed;
 }
 
-void refresh_view(ViewerState& v, StudioContext& ctx) {
-    if (!ctx.source) return;
-    try {
-        upload_texture(v.tex, v.mode->render(v, ctx), v.tex_w, v.tex_h);
-    } catch (const std::exception& e) {
-        upload_texture(v.tex, ctx.source->linear(ctx.frame), v.tex_w, v.tex_h);
-        ctx.info = e.what();
+// Shows the newest picture of `mode` at the playhead in `tex` (kept when there is none yet).
+void show_picture(ViewerState::Picture& pic, int mode, StudioContext& ctx) {
+    auto f = ctx.renderer->get(mode, ctx.frame);
+    if (!f || f == pic.shown) return;
+    upload_rgba8(pic.tex, f->rgba.data(), f->width, f->height);
+    pic.shown = f;
+}
+
+}  // namespace
+
+void poll_fit_output(ViewerState& v, AtlasPanel& atlas, StudioContext& ctx, bool playing) {
+    if (!ctx.doc.is_open() || !ctx.renderer) return;
+    bool changed = poll_worker(atlas, ctx) || ctx.view_dirty;
+    if (ctx.edit_version != ctx.edits_version() && !ctx.doc.edits().bg.base().empty()) {
+        // The edited atlases, copied for the renderer (edit over the fit's, paper Fig. 1).
+        ctx.edit_version = ctx.edits_version();
+        ctx.scene.edits.bg = std::make_shared<const Image>(ctx.doc.edits().bg.result());
+        const AtlasEditor& fg = ctx.doc.edits().fg;
+        ctx.scene.edits.fg =
+            fg.base().empty() ? nullptr : std::make_shared<const Image>(fg.result());
+        ctx.scene.edits.version = ctx.edit_version;
+        changed = true;
     }
-    ctx.view_dirty = v.mode->needs_fit && !ctx.view_at_playhead();
-    v.slice.dirty = true;
+    if (changed) {
+        ctx.scene.focus = ctx.doc.focus();
+        ctx.scene.depth = ctx.depth;
+        ++ctx.scene.generation;
+        ctx.renderer->set_scene(ctx.scene);
+        ctx.view_dirty = false;
+    }
+    const FitWorker::State state = ctx.worker->status().state;
+    const std::vector<int> modes = wanted_modes(v);
+    // Ahead of the playhead only when it pays: playing, or a fit that is not changing the atlases.
+    ctx.renderer->set_wanted(modes, ctx.frame, playing || state != FitWorker::State::Fitting);
+    show_picture(v.a, modes[0], ctx);
+    if (modes.size() > 1) show_picture(v.b, modes[1], ctx);
+    bool current = true;
+    for (int m : modes) current = current && ctx.renderer->current(m, ctx.frame);
+    ctx.view_current = current && !changed;
+    if (v.a.shown && v.a.shown->frame == ctx.frame && v.a.shown->view) ctx.view = v.a.shown->view;
+    if (v.b.shown && v.b.shown->frame == ctx.frame && v.b.shown->view) ctx.view = v.b.shown->view;
+    if (std::string e = ctx.renderer->take_error(); !e.empty()) ctx.info = e;
+    if (playing && v.a.shown) ctx.playback.pictures.insert(v.a.shown->hash);
 }
 
 std::optional<ViewerClick> draw_viewer(ViewerState& v, AtlasPanel& atlas, StudioContext& ctx) {
     const ImGuiViewport* vp = ImGui::GetMainViewport();
-    const ImVec2 size(vp->WorkSize.x - kSidePanelWidth, vp->WorkSize.y - kTimelineHeight);
-    ImGui::SetNextWindowPos(vp->WorkPos);
-    ImGui::SetNextWindowSize(size);
+    const Layout::Rect r =
+        ctx.layout.viewer(vp->WorkPos.x, vp->WorkPos.y, vp->WorkSize.x, vp->WorkSize.y);
+    ImGui::SetNextWindowPos(ImVec2(r.x, r.y));
+    ImGui::SetNextWindowSize(ImVec2(r.w, r.h));
     if (v.show_atlas) {
         if (atlas.draw()) ctx.changed();  // a stroke, an undo, an import
         return std::nullopt;
@@ -246,8 +306,11 @@ std::optional<ViewerClick> draw_viewer(ViewerState& v, AtlasPanel& atlas, Studio
         return std::nullopt;
     }
     draw_mode_bar(v, ctx);
-    if (ctx.view_dirty && (!v.mode->needs_fit || ctx.view_at_playhead())) refresh_view(v, ctx);
-    if (!v.tex) refresh_view(v, ctx);
+    if (!v.a.tex) {
+        ImGui::TextDisabled("rendering frame %d ...", ctx.frame);
+        ImGui::End();
+        return std::nullopt;
+    }
     ImVec2 avail = ImGui::GetContentRegionAvail();
     const float slice_h = v.slice.on ? std::min(avail.y * 0.35f, 160.0f) : 0.0f;
     avail.y -= slice_h;
@@ -264,8 +327,10 @@ std::optional<ViewerClick> draw_viewer(ViewerState& v, AtlasPanel& atlas, Studio
 }
 
 void release_viewer(ViewerState& v) {
-    if (v.tex) glDeleteTextures(1, &v.tex);
-    v.tex = 0;
+    for (ViewerState::Picture* p : {&v.a, &v.b}) {
+        if (p->tex) glDeleteTextures(1, &p->tex);
+        *p = ViewerState::Picture{};
+    }
     release_time_slice(v.slice);
 }
 

@@ -41,6 +41,7 @@ FitWorker::~FitWorker() {
     }
     m_cv.notify_all();
     m_thread.join();
+    for (auto& j : m_frame_jobs) j.second.set_value(std::nullopt);  // waiters wake up empty
 }
 
 void FitWorker::add_log(const std::string& line) {
@@ -298,6 +299,35 @@ void FitWorker::request_frame(int t) {
     m_cv.notify_all();
 }
 
+std::future<std::optional<FitWorker::ViewFrame>> FitWorker::frame_async(int t) {
+    std::promise<std::optional<ViewFrame>> p;
+    auto f = p.get_future();
+    std::lock_guard<std::mutex> lk(m_mutex);
+    if (m_quit) {
+        p.set_value(std::nullopt);
+        return f;
+    }
+    m_frame_jobs.emplace_back(t, std::move(p));
+    m_cv.notify_all();
+    return f;
+}
+
+std::optional<FitWorker::ViewFrame> FitWorker::render_view_frame(int t) {
+    if (!m_engine) return std::nullopt;
+    try {
+        ViewFrame v;
+        v.t = t;
+        v.maps = frame_maps(*m_engine, t);
+        v.radius = tensor_to_image(m_engine->data().radius[t].contiguous());
+        v.atlas_version = m_engine->snapshot().atlas_version;
+        return v;
+    } catch (const std::exception& e) {
+        std::lock_guard<std::mutex> l2(m_mutex);
+        m_status.error = std::string("render frame: ") + e.what();
+        return std::nullopt;
+    }
+}
+
 std::optional<FitWorker::ViewFrame> FitWorker::take_frame() {
     std::lock_guard<std::mutex> lk(m_mutex);
     auto r = std::move(m_frame_result);
@@ -352,8 +382,8 @@ void FitWorker::loop() {
     while (true) {
         std::unique_lock<std::mutex> lk(m_mutex);
         m_cv.wait(lk, [&] {
-            return m_quit || !m_jobs.empty() || m_frame_request || m_atlas_request ||
-                   (m_fitting && m_status.state == State::Fitting);
+            return m_quit || !m_jobs.empty() || !m_frame_jobs.empty() || m_frame_request ||
+                   m_atlas_request || (m_fitting && m_status.state == State::Fitting);
         });
         if (m_quit) break;
         if (!m_jobs.empty()) {
@@ -363,23 +393,20 @@ void FitWorker::loop() {
             run_job(job.first, job.second);
             continue;
         }
+        if (!m_frame_jobs.empty()) {
+            auto job = std::move(m_frame_jobs.front());
+            m_frame_jobs.pop_front();
+            lk.unlock();
+            job.second.set_value(render_view_frame(job.first));
+            continue;
+        }
         if (m_frame_request) {
             const int t = *m_frame_request;
             m_frame_request.reset();
             lk.unlock();
-            if (!m_engine) continue;
-            try {
-                ViewFrame v;
-                v.t = t;
-                v.maps = frame_maps(*m_engine, t);
-                v.radius = tensor_to_image(m_engine->data().radius[t].contiguous());
-                v.atlas_version = m_engine->snapshot().atlas_version;
-                std::lock_guard<std::mutex> l2(m_mutex);
-                m_frame_result = std::move(v);
-            } catch (const std::exception& e) {
-                std::lock_guard<std::mutex> l2(m_mutex);
-                m_status.error = std::string("render frame: ") + e.what();
-            }
+            auto v = render_view_frame(t);
+            std::lock_guard<std::mutex> l2(m_mutex);
+            if (v) m_frame_result = std::move(v);
             continue;
         }
         if (m_atlas_request) {

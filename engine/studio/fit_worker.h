@@ -6,6 +6,7 @@
 #include <condition_variable>
 #include <deque>
 #include <functional>
+#include <future>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -57,6 +58,10 @@ class FitWorker {
     };
     void request_frame(int t);
     std::optional<ViewFrame> take_frame();
+    // The same for a caller that waits off the UI thread (the viewer's renderer): frame t is
+    // rendered before the next fit step; the future holds nothing when no fit is open or the
+    // worker closes first.
+    std::future<std::optional<ViewFrame>> frame_async(int t);
     void request_atlases();
     struct Atlases {
         Image bg, fg;
@@ -93,6 +98,7 @@ class FitWorker {
     void set_state(State s);
     void fit_step();
     void end_fit(const std::string& why);
+    std::optional<ViewFrame> render_view_frame(int t);
 
     std::thread m_thread;
     mutable std::mutex m_mutex;  // guards everything below except the engine
@@ -110,6 +116,7 @@ class FitWorker {
     bool m_has_checkpoint = false;
 
     std::optional<int> m_frame_request;
+    std::deque<std::pair<int, std::promise<std::optional<ViewFrame>>>> m_frame_jobs;
     std::optional<ViewFrame> m_frame_result;
     bool m_atlas_request = false;
     std::optional<Atlases> m_atlas_result;

@@ -1,0 +1,39 @@
+#pragma once
+// How the viewer's renderer turns a frame's layers into a picture: the GLSL passes
+// (gl_preview.h) on a GL context of the renderer's own, or their CPU twin (engine/render/
+// preview.h). Both read the same kernel tables; tests/gl/test_gl_preview.cpp holds them equal.
+// Software GL (llvmpipe) runs the gather slower than the CPU twin, so the studio picks the CPU
+// there unless the user says otherwise (View > Preview renderer).
+#include <memory>
+#include <string>
+
+#include "edit/recompose.h"
+#include "render/preview.h"
+
+namespace refocus {
+
+// The artist's edited atlases (edit over the fit's atlases); bg empty until the fit's atlases
+// arrived. `version` changes with every stroke, undo or import.
+struct EditAtlases {
+    std::shared_ptr<const Image> bg, fg;
+    int64_t version = -1;
+};
+
+class PreviewBackend {
+  public:
+    virtual ~PreviewBackend() = default;
+    virtual const char* name() const = 0;
+    // The frame through `lens` (depth == nullptr or lens.aperture == 0: the sharp composite),
+    // with the edits drawn in through the frame's UV maps (paper Fig. 1). Linear RGB.
+    virtual Image render(const FrameMaps& maps, const EditAtlases& edits, const PreviewDepth* depth,
+                         const PreviewLens& lens) = 0;
+};
+
+std::unique_ptr<PreviewBackend> make_cpu_preview(int threads);
+// Needs a GL 3.3 context current on the calling thread for the backend's whole life.
+std::unique_ptr<PreviewBackend> make_gl_preview();
+
+// True for GL renderers that run on the CPU (llvmpipe, softpipe, swrast).
+bool is_software_gl(const std::string& renderer);
+
+}  // namespace refocus
