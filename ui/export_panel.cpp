@@ -89,7 +89,8 @@ void start_export(ExportPanelState& s, StudioContext& ctx, const nlohmann::json&
     auto job = std::make_shared<ExportJob>();
     job->passes = req.at("what").get<std::vector<std::string>>();
     job->format = req.value("format", "png");
-    job->out = req.at("out").get<std::string>();
+    // Absolute, so that the result line says where the files went.
+    job->out = fs::absolute(req.at("out").get<std::string>()).lexically_normal().string();
     const int n = ctx.source->frames();
     job->first = req.value("first", 0), job->last = req.value("last", n - 1);
     if (job->first < 0 || job->first > job->last || job->last >= n)
@@ -133,7 +134,21 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
         s.first = std::clamp(std::min(range[0], range[1]), 0, n - 1);
         s.last = std::clamp(std::max(range[0], range[1]), 0, n - 1);
     }
+    ImGui::SetNextItemWidth(200);
     ImGui::InputText("folder", s.out, sizeof s.out);
+    item_tooltip("The folder the passes are written to (one folder or .mp4 per pass)");
+    ImGui::SameLine();
+    if (ImGui::Button("Browse...")) {
+        const fs::path out = fs::absolute(s.out);
+        BrowseOptions o;
+        o.mode = BrowseMode::Folder;
+        o.title = "Export folder";
+        o.ok = "Choose";
+        o.dir = out.parent_path().string();
+        o.name = out.filename().string();
+        s.browser.open(o);
+    }
+    item_tooltip("Pick the export folder, or name a new one, in the file browser");
     if (ImGui::Button("Export")) {
         nlohmann::json req = {
             {"format", kFormats[s.format]}, {"out", s.out}, {"first", s.first}, {"last", s.last}};
@@ -150,6 +165,8 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
         ImGui::TextDisabled("files are complete or absent: a cancelled sequence is removed");
     }
     if (!s.result.empty()) ImGui::TextWrapped("%s", s.result.c_str());
+    if (s.browser.draw() == BrowseEvent::Picked)
+        std::snprintf(s.out, sizeof s.out, "%s", s.browser.picked().c_str());
 }
 
 }  // namespace refocus

@@ -308,6 +308,12 @@ int run_studio(const StudioOptions& opts) {
     int code = 0;
     {
         Studio studio(window, opts);
+        // Clips or projects dropped on the window open in the next frame, as File > Open does.
+        glfwSetWindowUserPointer(window, &studio);
+        glfwSetDropCallback(window, [](GLFWwindow* w, int n, const char** paths) {
+            static_cast<Studio*>(glfwGetWindowUserPointer(w))
+                ->drop(std::vector<std::string>(paths, paths + n));
+        });
         std::unique_ptr<StudioScript> script;
         if (!opts.script.empty()) {
             script = std::make_unique<StudioScript>(opts.script);
@@ -362,6 +368,7 @@ int run_studio(const StudioOptions& opts) {
             }
             glfwSwapBuffers(window);
         }
+        glfwSetDropCallback(window, nullptr);  // the studio goes at the end of this block
     }
     ImGui_ImplOpenGL3_Shutdown();
     ImGui_ImplGlfw_Shutdown();

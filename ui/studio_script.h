@@ -17,6 +17,11 @@
 //   {"save": true}  {"save_as": dir}  {"reopen": true}  {"screenshot": path}
 //   {"expect": {"keys": {"focus": n, ...}, "edits": true|false, "fitted": true}}
 //   {"stats": path}  (UI frame times as JSON)   {"quit": true}
+//   {"drop": path}  (as if dropped on the window: opens it like File > Open; waits for it)
+//   {"browser": {"dialog": "open|new|new_folder|save_as", "dir": d, "shows": [name, ...],
+//                "select": name, "pick": name}}  (opens the studio's file browser on d; "shows"
+//   must be listed; "select" clicks a name, "pick" double-clicks it and waits for what
+//   follows: a folder entered, a project opened)   {"browser": false}  (closes it)
 #include <nlohmann/json.hpp>
 
 #include <optional>
@@ -40,6 +45,7 @@ class StudioScript {
     std::optional<bool> view_step(Studio& st, const nlohmann::json& step, bool first);
     std::optional<bool> edit_step(Studio& st, const nlohmann::json& step, bool first);
     std::optional<bool> check_step(Studio& st, const nlohmann::json& step, bool first);
+    std::optional<bool> file_step(Studio& st, const nlohmann::json& step, bool first);
     bool worker_idle(Studio& st) const;  // throws the fit's error when it failed
     std::string m_path;
     nlohmann::json m_steps;
