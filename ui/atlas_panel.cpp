@@ -175,32 +175,38 @@ void AtlasPanel::draw_controls(AtlasEditor& ed) {
 }
 
 // Export and import ask for the file through the browser; the layer shown is the one written.
+void AtlasPanel::ask_export(const std::string& dir) {
+    BrowseOptions o;
+    o.mode = BrowseMode::Save;
+    o.filter = BrowseFilter::Images;
+    o.title = "Export the atlas";
+    o.ok = "Export";
+    o.dir = dir;
+    o.name =
+        std::string("atlas_") + (m_layer ? "fg" : "bg") + "_edit" + kExportExts[m_export_format];
+    m_browser.open(o);
+    m_browsing = Browsing::Export;
+}
+
+void AtlasPanel::ask_import(const std::string& dir) {
+    BrowseOptions o;
+    o.filter = BrowseFilter::Images;
+    o.title = "Import an atlas image";
+    o.ok = "Import";
+    o.dir = dir;
+    m_browser.open(o);
+    m_browsing = Browsing::Import;
+}
+
 void AtlasPanel::draw_file_buttons() {
-    if (ImGui::Button("Export...")) {
-        BrowseOptions o;
-        o.mode = BrowseMode::Save;
-        o.filter = BrowseFilter::Images;
-        o.title = "Export the atlas";
-        o.ok = "Export";
-        o.name = std::string("atlas_") + (m_layer ? "fg" : "bg") + "_edit" +
-                 kExportExts[m_export_format];
-        m_browser.open(o);
-        m_browsing = Browsing::Export;
-    }
+    if (ImGui::Button("Export...")) ask_export();
     item_tooltip("Write this layer's edited atlas to an image file (asks where)");
     ImGui::SameLine();
     ImGui::SetNextItemWidth(90);
     ImGui::Combo("##fmt", &m_export_format, kExportNames, 3);
     item_tooltip("The exported file's format; a name ending in .png, .tif or .exr picks it too");
     ImGui::SameLine();
-    if (ImGui::Button("Import...")) {
-        BrowseOptions o;
-        o.filter = BrowseFilter::Images;
-        o.title = "Import an atlas image";
-        o.ok = "Import";
-        m_browser.open(o);
-        m_browsing = Browsing::Import;
-    }
+    if (ImGui::Button("Import...")) ask_import();
     item_tooltip(
         "Read a repainted export (the atlas's size): where it differs from the\n"
         "fitted atlas becomes the edit, one step that Undo takes back");

@@ -46,6 +46,12 @@ class AtlasPanel {
     bool export_atlas(int layer, const std::string& path, PixelFormat format);
     bool undo(int layer);
     bool redo(int layer);
+    // What "Export..." and "Import..." do: open the panel's file browser (on `dir` when given);
+    // the pick exports or imports the active layer and the info line says the full path.
+    void ask_export(const std::string& dir = {});
+    void ask_import(const std::string& dir = {});
+    FileBrowser& browser() { return m_browser; }  // scripts: pick in it
+    const std::string& status() const { return m_status; }
 
     // Where atlas px (x, y) was drawn by the last draw(), in ImGui screen coordinates.
     std::array<float, 2> atlas_to_screen(float x, float y) const {

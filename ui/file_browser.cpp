@@ -255,6 +255,13 @@ bool FileBrowser::activate(const std::string& name) {
     return false;
 }
 
+bool FileBrowser::accept(const std::string& name) {
+    if (m_opt.mode == BrowseMode::Open) return activate(name);
+    std::snprintf(m_name_buf, sizeof m_name_buf, "%s", name.c_str());
+    pick_with_ok();
+    return m_problem.empty();
+}
+
 // A double-click: enters a folder, picks a project (where projects are wanted) or a file.
 void FileBrowser::activate(size_t index) {
     const FolderEntry e = m_list.entries[index];
@@ -516,7 +523,13 @@ BrowseEvent FileBrowser::draw() {
             ImVec2(std::min(940.0f, vp->WorkSize.x - 40), std::min(580.0f, vp->WorkSize.y - 40)),
             ImGuiCond_Appearing);
         bool keep = true;
-        if (ImGui::BeginPopupModal(id, &keep, ImGuiWindowFlags_NoSavedSettings)) {
+        // Opaque: a list of names reads badly over the viewer's image.
+        ImVec4 bg = ImGui::GetStyleColorVec4(ImGuiCol_PopupBg);
+        bg.w = 1.0f;
+        ImGui::PushStyleColor(ImGuiCol_PopupBg, bg);
+        const bool shown = ImGui::BeginPopupModal(id, &keep, ImGuiWindowFlags_NoSavedSettings);
+        ImGui::PopStyleColor();
+        if (shown) {
             if (m_closing) {
                 m_open = m_closing = false;
             } else {

@@ -102,6 +102,10 @@ class FileBrowser {
     // folder does. False when it is not listed.
     bool select(const std::string& name);
     bool activate(const std::string& name);
+    // Scripts: Open: activate(name); Folder and Save: `name` typed into the name field, then
+    // the pick button. False when refused (problem() says why) or not listed.
+    bool accept(const std::string& name);
+    const std::string& problem() const { return m_problem; }
     void navigate(const std::string& dir);
 
   private:

@@ -177,11 +177,12 @@ void Studio::browse(DialogState::Browse what, bool from_prompt, const std::strin
         o.title = "Clip for the new project";
         o.ok = "Choose";
     } else {
-        // A folder: the typed one, else beside the clip (new) or the project (save as).
+        // A folder: the one typed in the prompt, else beside the clip (new) or the project
+        // (save as).
         o.mode = BrowseMode::Folder;
         o.ok = what == B::SaveAs ? "Save" : "Choose";
         o.title = what == B::SaveAs ? "Save the project as" : "Folder for the new project";
-        fs::path p = d.path_buf[0] ? fs::absolute(d.path_buf) : fs::path();
+        fs::path p = from_prompt && d.path_buf[0] ? fs::absolute(d.path_buf) : fs::path();
         if (p.empty() && what == B::NewFolder && d.clip_buf[0]) {
             const fs::path clip = fs::absolute(d.clip_buf);
             p = clip.parent_path() / (clip.stem().string() + "_refocus");

@@ -18,10 +18,12 @@
 //   {"expect": {"keys": {"focus": n, ...}, "edits": true|false, "fitted": true}}
 //   {"stats": path}  (UI frame times as JSON)   {"quit": true}
 //   {"drop": path}  (as if dropped on the window: opens it like File > Open; waits for it)
-//   {"browser": {"dialog": "open|new|new_folder|save_as", "dir": d, "shows": [name, ...],
-//                "select": name, "pick": name}}  (opens the studio's file browser on d; "shows"
-//   must be listed; "select" clicks a name, "pick" double-clicks it and waits for what
-//   follows: a folder entered, a project opened)   {"browser": false}  (closes it)
+//   {"browser": {"dialog": "open|new|new_folder|save_as|atlas_export|atlas_import", "dir": d,
+//                "shows": [name, ...], "select": name, "pick": name}}  (opens that file browser
+//   on d; "shows" must be listed; "select" clicks a name; "pick" double-clicks it (open
+//   dialogs) or types it as the name and presses the button (folder, save), then waits for
+//   what follows: a folder entered, a project opened, an atlas written)
+//   {"browser": false}  (closes it)
 #include <nlohmann/json.hpp>
 
 #include <optional>
