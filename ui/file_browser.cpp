@@ -90,15 +90,21 @@ const ImVec4 kErrorColour(1.0f, 0.45f, 0.4f, 1.0f);
 
 // ---- the listing ----
 
+namespace {
+EntryKind kind_by_name(const std::string& name) {
+    const std::string e = lower(fs::path(name).extension().string());
+    if (is_video_ext(e)) return EntryKind::Video;
+    if (is_image_ext(e)) return EntryKind::Image;
+    return EntryKind::Other;
+}
+}  // namespace
+
 EntryKind entry_kind(const std::string& path) {
     std::error_code ec;
     if (fs::is_directory(path, ec))
         return fs::exists(fs::path(path) / "project.json", ec) ? EntryKind::Project
                                                                : EntryKind::Folder;
-    const std::string e = lower(fs::path(path).extension().string());
-    if (is_video_ext(e)) return EntryKind::Video;
-    if (is_image_ext(e)) return EntryKind::Image;
-    return EntryKind::Other;
+    return kind_by_name(fs::path(path).filename().string());
 }
 
 bool filter_keeps(BrowseFilter filter, EntryKind kind) {
@@ -132,11 +138,18 @@ FolderListing list_folder(const std::string& dir, BrowseFilter filter, bool show
         FolderEntry e;
         e.name = p.filename().string();
         if (!show_hidden && e.name[0] == '.') continue;
-        e.kind = entry_kind(p.string());
+        // One stat an entry (a sequence's folder holds thousands): type, size, exact mtime
+        // (C++17 has no file_clock to time_t). A broken link is a file by its name.
+        struct stat st;
+        const bool ok = ::stat(p.c_str(), &st) == 0;
+        std::error_code pec;
+        if (ok && S_ISDIR(st.st_mode))
+            e.kind = fs::exists(p / "project.json", pec) ? EntryKind::Project : EntryKind::Folder;
+        else
+            e.kind = kind_by_name(e.name);
         if (e.kind == EntryKind::Image) ++out.images;
         if (!filter_keeps(filter, e.kind)) continue;
-        struct stat st;
-        if (::stat(p.c_str(), &st) == 0) {  // exact mtime: C++17 has no file_clock conversion
+        if (ok) {
             e.size = e.folder() ? 0 : static_cast<uint64_t>(st.st_size);
             e.modified = static_cast<int64_t>(st.st_mtime);
         }
@@ -405,6 +418,31 @@ void FileBrowser::draw_places(float height) {
     select(go_select);
 }
 
+std::string FileBrowser::row_tip(const FolderEntry& e) const {
+    const bool wants_project =
+        m_opt.mode == BrowseMode::Open && m_opt.filter == BrowseFilter::Media;
+    const bool clips = m_opt.filter == BrowseFilter::Media || m_opt.filter == BrowseFilter::Clips;
+    switch (e.kind) {
+        case EntryKind::Folder:
+            return "Double-click: go into the folder";
+        case EntryKind::Project:
+            return wants_project ? "A Refocus project: double-click opens it"
+                                 : "A Refocus project's folder: double-click goes into it";
+        case EntryKind::Image:
+            if (m_opt.mode == BrowseMode::Open && clips)
+                return "A frame: double-click picks its folder's image sequence";
+            break;
+        case EntryKind::Video:
+            if (m_opt.mode == BrowseMode::Open && m_opt.filter == BrowseFilter::Media)
+                return "A video: double-click opens it (a project is made beside it)";
+            break;
+        default:
+            break;
+    }
+    return m_opt.mode == BrowseMode::Save ? "Double-click: write over this file"
+                                          : "Double-click: pick this file";
+}
+
 void FileBrowser::draw_list(float height) {
     int activated = -1;
     const ImGuiTableFlags flags = ImGuiTableFlags_ScrollY | ImGuiTableFlags_RowBg |
@@ -417,31 +455,42 @@ void FileBrowser::draw_list(float height) {
     ImGui::TableSetupColumn("Size", ImGuiTableColumnFlags_WidthFixed, 70);
     ImGui::TableSetupColumn("Modified", ImGuiTableColumnFlags_WidthFixed, 120);
     ImGui::TableHeadersRow();
-    for (size_t i = 0; i < m_list.entries.size(); ++i) {
-        const FolderEntry& e = m_list.entries[i];
-        ImGui::TableNextRow();
-        ImGui::TableNextColumn();
-        ImGui::PushID(static_cast<int>(i));
-        ImGui::PushStyleColor(ImGuiCol_Text, kind_colour(e.kind));
-        const std::string label = e.folder() ? e.name + "/" : e.name;
-        if (ImGui::Selectable(
-                label.c_str(), m_selected == int(i),
-                ImGuiSelectableFlags_SpanAllColumns | ImGuiSelectableFlags_AllowDoubleClick)) {
-            m_selected = static_cast<int>(i);
-            m_problem.clear();
-            if (m_opt.mode == BrowseMode::Save && !e.folder())
-                std::snprintf(m_name_buf, sizeof m_name_buf, "%s", e.name.c_str());
-            if (ImGui::IsMouseDoubleClicked(0)) activated = static_cast<int>(i);
+    // Only the rows in view are drawn: a sequence's folder lists thousands of frames.
+    ImGuiListClipper clipper;
+    clipper.Begin(static_cast<int>(m_list.entries.size()));
+    int hovered = -1;
+    while (clipper.Step())
+        for (int i = clipper.DisplayStart; i < clipper.DisplayEnd; ++i) {
+            const FolderEntry& e = m_list.entries[i];
+            ImGui::TableNextRow();
+            ImGui::TableNextColumn();
+            ImGui::PushID(i);
+            ImGui::PushStyleColor(ImGuiCol_Text, kind_colour(e.kind));
+            const std::string label = e.folder() ? e.name + "/" : e.name;
+            if (ImGui::Selectable(
+                    label.c_str(), m_selected == i,
+                    ImGuiSelectableFlags_SpanAllColumns | ImGuiSelectableFlags_AllowDoubleClick)) {
+                m_selected = i;
+                m_problem.clear();
+                if (m_opt.mode == BrowseMode::Save && !e.folder())
+                    std::snprintf(m_name_buf, sizeof m_name_buf, "%s", e.name.c_str());
+                if (ImGui::IsMouseDoubleClicked(0)) activated = i;
+            }
+            ImGui::PopStyleColor();
+            if (ImGui::IsItemHovered()) hovered = i;
+            ImGui::TableNextColumn();
+            ImGui::TextDisabled("%s", kind_label(e.kind));
+            ImGui::TableNextColumn();
+            if (!e.folder()) ImGui::TextUnformatted(format_size(e.size).c_str());
+            ImGui::TableNextColumn();
+            ImGui::TextDisabled("%s", format_date(e.modified).c_str());
+            ImGui::PopID();
         }
-        ImGui::PopStyleColor();
-        ImGui::TableNextColumn();
-        ImGui::TextDisabled("%s", kind_label(e.kind));
-        ImGui::TableNextColumn();
-        if (!e.folder()) ImGui::TextUnformatted(format_size(e.size).c_str());
-        ImGui::TableNextColumn();
-        ImGui::TextDisabled("%s", format_date(e.modified).c_str());
-        ImGui::PopID();
-    }
+    // What a double-click on the row does, once the pointer rests on it (not while it sweeps).
+    const double now = ImGui::GetTime();
+    if (hovered != m_hover_row) m_hover_row = hovered, m_hover_since = now;
+    if (hovered >= 0 && now - m_hover_since > 0.6)
+        ImGui::SetTooltip("%s", row_tip(m_list.entries[hovered]).c_str());
     if (m_list.entries.empty() && m_list.error.empty()) {
         ImGui::TableNextRow();
         ImGui::TableNextColumn();

@@ -117,12 +117,15 @@ class FileBrowser {
     void draw_list(float height);
     void draw_footer();
     std::string target() const;  // what the pick button picks now; empty: nothing yet
+    std::string row_tip(const FolderEntry& e) const;
 
     BrowseOptions m_opt;
     bool m_open = false, m_want_open = false, m_closing = false;
     bool m_show_hidden = false, m_all_files = false;
     FolderListing m_list;
     int m_selected = -1;
+    int m_hover_row = -1;  // the row under the pointer, since when (its tooltip waits)
+    double m_hover_since = 0.0;
     std::string m_picked, m_problem;  // m_problem: why the last pick was refused
     BrowseEvent m_event = BrowseEvent::None;
     char m_path_buf[1024] = {0};
