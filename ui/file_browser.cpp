@@ -250,22 +250,22 @@ void FileBrowser::navigate(const std::string& dir) {
     std::snprintf(m_path_buf, sizeof m_path_buf, "%s", m_list.dir.c_str());
 }
 
-bool FileBrowser::select(const std::string& name) {
+int FileBrowser::index_of(const std::string& name) const {
     for (size_t i = 0; i < m_list.entries.size(); ++i)
-        if (m_list.entries[i].name == name) {
-            m_selected = static_cast<int>(i);
-            return true;
-        }
-    return false;
+        if (m_list.entries[i].name == name) return static_cast<int>(i);
+    return -1;
+}
+
+bool FileBrowser::select(const std::string& name) {
+    const int i = index_of(name);
+    if (i >= 0) m_selected = i;
+    return i >= 0;
 }
 
 bool FileBrowser::activate(const std::string& name) {
-    for (size_t i = 0; i < m_list.entries.size(); ++i)
-        if (m_list.entries[i].name == name) {
-            activate(i);
-            return true;
-        }
-    return false;
+    const int i = index_of(name);
+    if (i >= 0) activate(static_cast<size_t>(i));
+    return i >= 0;
 }
 
 bool FileBrowser::accept(const std::string& name) {

@@ -110,6 +110,7 @@ class FileBrowser {
 
   private:
     void activate(size_t index);
+    int index_of(const std::string& name) const;  // -1: not listed
     void pick(const std::string& path);
     void pick_with_ok();
     void draw_top_bar();

@@ -23,7 +23,7 @@ bool path_popup(const char* title, const char* prompt, char* buf, size_t n, cons
         ImGui::SetNextItemWidth(520);
         if (ImGui::IsWindowAppearing()) ImGui::SetKeyboardFocusHere();
         go = ImGui::InputText("##path", buf, n, ImGuiInputTextFlags_EnterReturnsTrue);
-        item_tooltip("Type a path (~ is your home folder) and press Enter, or browse for it");
+        item_tooltip("Type a path and press Enter, or browse for it");
         ImGui::SameLine();
         browse = ImGui::Button("Browse...");
         item_tooltip("Pick it in the file browser");
