@@ -1,5 +1,6 @@
-// refocus-studio opens a project headless (Xvfb) and shows the frame at the playhead; a scripted
-// session drives the whole studio (tests/gui/smoke.json).
+// refocus-studio opens a project headless (Xvfb) and shows the frame at the playhead; scripted
+// sessions drive the whole studio (tests/gui/smoke.json) and its file browser and drops
+// (tests/gui/browser.json).
 #include <doctest/doctest.h>
 
 #include <algorithm>
@@ -66,6 +67,34 @@ TEST_CASE("studio reports a bad project path and exits non-zero") {
                       (dir / "missing.mp4").string() + "' --exit-after 2");
     CHECK(r.code != 0);
     CHECK(r.output.find("missing.mp4") != std::string::npos);
+}
+
+TEST_CASE("scripted studio session: the file browser lists a folder, a drop opens a clip") {
+    if (run("command -v xvfb-run").code != 0) {
+        MESSAGE("xvfb-run not installed: skipping");
+        return;
+    }
+    // A folder with an image sequence, a project and a video's name (listed, never read).
+    fs::path dir = scratch_dir("studio_browser");
+    std::vector<Image> frames;
+    for (int i = 0; i < 4; ++i) frames.push_back(pattern_frame(48, 32, i));
+    write_png_sequence(dir / "seq", frames);
+    create_project((dir / "seq").string(), dir / "proj", {});
+    write_file_atomic((dir / "clip_a.mp4").string(), "");
+    const std::string script = std::string(REFOCUS_SOURCE_DIR) + "/tests/gui/browser.json";
+    RunResult r = run("cd '" + dir.string() + "' && XDG_CONFIG_HOME='" + dir.string() +
+                      "' xvfb-run -a -s '-screen 0 1280x800x24' " + std::string(REFOCUS_STUDIO) +
+                      " --size 1280x800 --script '" + script + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    CHECK(fs::exists(dir / "browser.png"));
+    // The dropped sequence got a project beside it, then the browser's pick opened "proj":
+    // both went through File > Open's action, which lists them as recent, newest first.
+    CHECK(Project::load(dir / "seq_refocus").frames == 4);
+    auto recent = nlohmann::json::parse(read_text_file((dir / "refocus/recent.json").string()));
+    REQUIRE(recent.size() == 2);
+    CHECK(fs::path(recent[0].get<std::string>()).filename() == "proj");
+    CHECK(fs::path(recent[1].get<std::string>()).filename() == "seq_refocus");
 }
 
 namespace {

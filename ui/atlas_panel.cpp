@@ -4,6 +4,7 @@
 #include <imgui.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 
 namespace refocus {
@@ -13,6 +14,17 @@ const char* kLayerLabel[2] = {"Background", "Foreground"};
 const PixelFormat kExportFormats[3] = {PixelFormat::Png8, PixelFormat::Tiff16,
                                        PixelFormat::ExrHalf};
 const char* kExportNames[3] = {"PNG", "TIFF 16", "EXR"};
+const char* kExportExts[3] = {".png", ".tif", ".exr"};
+
+// The export format a file name asks for (its extension); -1 when it names none of them.
+int format_of_name(const fs::path& p) {
+    std::string e = p.extension().string();
+    for (char& c : e) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    if (e == ".png") return 0;
+    if (e == ".tif" || e == ".tiff") return 1;
+    if (e == ".exr") return 2;
+    return -1;
+}
 }  // namespace
 
 AtlasPanel::~AtlasPanel() {
@@ -150,28 +162,76 @@ void AtlasPanel::draw_controls(AtlasEditor& ed) {
     ImGui::SameLine();
     if (ImGui::Button("Fit")) m_zoom = 1.0f, m_pan[0] = m_pan[1] = 0;
 
-    ImGui::SetNextItemWidth(300);
-    ImGui::InputText("##export", m_export_path, sizeof m_export_path);
-    ImGui::SameLine();
-    ImGui::SetNextItemWidth(90);
-    ImGui::Combo("##fmt", &m_export_format, kExportNames, 3);
-    ImGui::SameLine();
-    if (ImGui::Button("Export"))
-        export_atlas(m_layer, m_export_path, kExportFormats[m_export_format]);
-    ImGui::SameLine(0, 24);
-    ImGui::SetNextItemWidth(300);
-    ImGui::InputText("##import", m_import_path, sizeof m_import_path);
-    ImGui::SameLine();
-    if (ImGui::Button("Import")) import_atlas(m_layer, m_import_path);
-    if (m_project) {
-        ImGui::SameLine(0, 24);
-        if (ImGui::Button("Save edits")) guarded([&] { m_edits->save(*m_project); });
-    }
+    draw_file_buttons();
     ImGui::Text("%dx%d  %s", ed.width(), ed.height(), ed.has_edits() ? "edited" : "no edits");
+    if (!m_status.empty() && m_error.empty()) {
+        ImGui::SameLine();
+        ImGui::TextDisabled("%s", m_status.c_str());
+    }
     if (!m_error.empty()) {
         ImGui::SameLine();
         ImGui::TextColored(ImVec4(1.0f, 0.4f, 0.35f, 1.0f), "%s", m_error.c_str());
     }
+}
+
+// Export and import ask for the file through the browser; the layer shown is the one written.
+void AtlasPanel::ask_export(const std::string& dir) {
+    BrowseOptions o;
+    o.mode = BrowseMode::Save;
+    o.filter = BrowseFilter::Images;
+    o.title = "Export the atlas";
+    o.ok = "Export";
+    o.dir = dir;
+    o.name =
+        std::string("atlas_") + (m_layer ? "fg" : "bg") + "_edit" + kExportExts[m_export_format];
+    m_browser.open(o);
+    m_browsing = Browsing::Export;
+}
+
+void AtlasPanel::ask_import(const std::string& dir) {
+    BrowseOptions o;
+    o.filter = BrowseFilter::Images;
+    o.title = "Import an atlas image";
+    o.ok = "Import";
+    o.dir = dir;
+    m_browser.open(o);
+    m_browsing = Browsing::Import;
+}
+
+void AtlasPanel::draw_file_buttons() {
+    if (ImGui::Button("Export...")) ask_export();
+    item_tooltip("Write this layer's edited atlas to an image file (asks where)");
+    ImGui::SameLine();
+    ImGui::SetNextItemWidth(90);
+    ImGui::Combo("##fmt", &m_export_format, kExportNames, 3);
+    item_tooltip("The exported file's format; a name ending in .png, .tif or .exr picks it too");
+    ImGui::SameLine();
+    if (ImGui::Button("Import...")) ask_import();
+    item_tooltip(
+        "Read a repainted export (the atlas's size): where it differs from the\n"
+        "fitted atlas becomes the edit, one step that Undo takes back");
+    if (m_project) {
+        ImGui::SameLine(0, 24);
+        if (ImGui::Button("Save edits")) guarded([&] { m_edits->save(*m_project); });
+        item_tooltip("Write the edits into the project (edits/, project.json)");
+    }
+}
+
+void AtlasPanel::take_browser_pick() {
+    if (m_browser.draw() != BrowseEvent::Picked) return;
+    fs::path p = m_browser.picked();
+    if (m_browsing == Browsing::Export) {
+        const int f = format_of_name(p);
+        if (f >= 0)
+            m_export_format = f;
+        else
+            p += kExportExts[m_export_format];
+        if (export_atlas(m_layer, p.string(), kExportFormats[m_export_format]))
+            m_status = "wrote " + p.string();
+    } else if (m_browsing == Browsing::Import && import_atlas(m_layer, p.string())) {
+        m_status = "imported " + p.string();
+    }
+    m_browsing = Browsing::None;
 }
 
 void AtlasPanel::draw_canvas(AtlasEditor& ed) {
@@ -294,6 +354,7 @@ bool AtlasPanel::draw(bool* open) {
             ImGui::EndTabBar();
         }
     }
+    take_browser_pick();
     ImGui::End();
     bool changed = false;
     for (int i = 0; m_edits && i < 2; ++i) {

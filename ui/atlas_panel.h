@@ -4,7 +4,8 @@
 // Background / Foreground tabs, the atlas (sRGB for display, uploaded only when it changed),
 // zoom (wheel) and pan (middle or right drag), brush (colour, size, hardness, opacity,
 // Paint / Erase / Clone with Alt+click for the source, eyedropper: I key or button), undo/redo
-// (buttons, Ctrl+Z, Ctrl+Shift+Z / Ctrl+Y), export and import of a layer.
+// (buttons, Ctrl+Z, Ctrl+Shift+Z / Ctrl+Y), export and import of a layer through the file
+// browser (file_browser.h), the full path written or read shown on the panel's info line.
 //
 // Use from the UI thread with a current GL context:
 //     AtlasPanel panel; panel.set_edits(&edits);
@@ -16,6 +17,7 @@
 #include <vector>
 
 #include "edit/atlas_edit.h"
+#include "file_browser.h"
 
 namespace refocus {
 
@@ -44,6 +46,12 @@ class AtlasPanel {
     bool export_atlas(int layer, const std::string& path, PixelFormat format);
     bool undo(int layer);
     bool redo(int layer);
+    // What "Export..." and "Import..." do: open the panel's file browser (on `dir` when given);
+    // the pick exports or imports the active layer and the info line says the full path.
+    void ask_export(const std::string& dir = {});
+    void ask_import(const std::string& dir = {});
+    FileBrowser& browser() { return m_browser; }  // scripts: pick in it
+    const std::string& status() const { return m_status; }
 
     // Where atlas px (x, y) was drawn by the last draw(), in ImGui screen coordinates.
     std::array<float, 2> atlas_to_screen(float x, float y) const {
@@ -60,6 +68,8 @@ class AtlasPanel {
     void upload(int layer);
     void draw_canvas(AtlasEditor& ed);
     void draw_controls(AtlasEditor& ed);
+    void draw_file_buttons();
+    void take_browser_pick();
 
     ProjectEdits* m_edits = nullptr;
     Project* m_project = nullptr;
@@ -75,9 +85,10 @@ class AtlasPanel {
     bool m_painting = false, m_picking = false;
     bool m_have_clone_src = false, m_clone_aligned = false;
     float m_clone_src[2] = {0, 0};
-    char m_export_path[1024] = "atlas_edit.png";
-    char m_import_path[1024] = "";
     int m_export_format = 0;  // PNG 8, TIFF 16, EXR
+    FileBrowser m_browser;
+    enum class Browsing { None, Import, Export } m_browsing = Browsing::None;
+    std::string m_status;  // what the last export or import wrote or read (full path)
 };
 
 }  // namespace refocus

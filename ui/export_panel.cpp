@@ -1,5 +1,7 @@
 #include "export_panel.h"
 
+#include <GLFW/glfw3.h>
+
 #include <imgui.h>
 
 #include <algorithm>
@@ -89,7 +91,8 @@ void start_export(ExportPanelState& s, StudioContext& ctx, const nlohmann::json&
     auto job = std::make_shared<ExportJob>();
     job->passes = req.at("what").get<std::vector<std::string>>();
     job->format = req.value("format", "png");
-    job->out = req.at("out").get<std::string>();
+    // Absolute, so that the result line says where the files went.
+    job->out = fs::absolute(req.at("out").get<std::string>()).lexically_normal().string();
     const int n = ctx.source->frames();
     job->first = req.value("first", 0), job->last = req.value("last", n - 1);
     if (job->first < 0 || job->first > job->last || job->last >= n)
@@ -102,6 +105,7 @@ void start_export(ExportPanelState& s, StudioContext& ctx, const nlohmann::json&
     job->focus = std::make_shared<FocusTrack>(ctx.doc.focus());
     job->fps = ctx.source->fps();
     s.running = true;
+    s.started = glfwGetTime();
     s.result.clear();
     FitWorker* w = ctx.worker.get();
     ctx.worker->post("export", [job, w](FitEngine* engine, const Project&) {
@@ -128,12 +132,32 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
     ImGui::TextDisabled("radius, depth and UV are written as EXR; atlases as images");
     const int n = ctx.source ? ctx.source->frames() : 1;
     if (s.last < 0) s.last = n - 1;
+    if (ctx.in_frame != s.seen_in || ctx.out_frame != s.seen_out) {
+        // New in/out points on the timeline (I, O): the range follows them, as in an editor.
+        s.seen_in = ctx.in_frame, s.seen_out = ctx.out_frame;
+        s.first = ctx.first_frame(), s.last = ctx.last_frame();
+    }
     int range[2] = {s.first, s.last};
     if (ImGui::DragInt2("frames", range, 0.2f, 0, n - 1)) {
         s.first = std::clamp(std::min(range[0], range[1]), 0, n - 1);
         s.last = std::clamp(std::max(range[0], range[1]), 0, n - 1);
     }
+    item_tooltip("First and last frame to export; follows the timeline's in and out points (I, O)");
+    ImGui::SetNextItemWidth(200);
     ImGui::InputText("folder", s.out, sizeof s.out);
+    item_tooltip("The folder the passes are written to (one folder or .mp4 per pass)");
+    ImGui::SameLine();
+    if (ImGui::Button("Browse...")) {
+        const fs::path out = fs::absolute(s.out);
+        BrowseOptions o;
+        o.mode = BrowseMode::Folder;
+        o.title = "Export folder";
+        o.ok = "Choose";
+        o.dir = out.parent_path().string();
+        o.name = out.filename().string();
+        s.browser.open(o);
+    }
+    item_tooltip("Pick the export folder, or name a new one, in the file browser");
     if (ImGui::Button("Export")) {
         nlohmann::json req = {
             {"format", kFormats[s.format]}, {"out", s.out}, {"first", s.first}, {"last", s.last}};
@@ -145,11 +169,23 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
     }
     ImGui::EndDisabled();
     if (s.running) {
-        ImGui::ProgressBar(static_cast<float>(st.job_progress), ImVec2(-1, 0));
+        // Elapsed and a linear ETA from the fraction done, as the fit's bar shows them.
+        const double p = st.job_progress, el = glfwGetTime() - s.started;
+        char label[96];
+        if (p > 0.01)
+            std::snprintf(label, sizeof label, "%.0f%%  elapsed %d:%02d  ETA %d:%02d", 100 * p,
+                          int(el) / 60, int(el) % 60, int(el * (1 - p) / p) / 60,
+                          int(el * (1 - p) / p) % 60);
+        else
+            std::snprintf(label, sizeof label, "starting  elapsed %d:%02d", int(el) / 60,
+                          int(el) % 60);
+        ImGui::ProgressBar(static_cast<float>(p), ImVec2(-1, 0), label);
         if (ImGui::Button("Cancel")) ctx.worker->cancel_job();
         ImGui::TextDisabled("files are complete or absent: a cancelled sequence is removed");
     }
     if (!s.result.empty()) ImGui::TextWrapped("%s", s.result.c_str());
+    if (s.browser.draw() == BrowseEvent::Picked)
+        std::snprintf(s.out, sizeof s.out, "%s", s.browser.picked().c_str());
 }
 
 }  // namespace refocus

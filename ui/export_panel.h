@@ -1,8 +1,11 @@
 #pragma once
-// The Export tab: passes, format, frame range and folder; progress with cancel.
+// The Export tab: passes, format, frame range and folder (typed or browsed); progress with
+// cancel.
 #include <nlohmann/json.hpp>
 
 #include <string>
+
+#include "file_browser.h"
 
 namespace refocus {
 
@@ -15,7 +18,10 @@ struct ExportPanelState {
     int first = 0, last = -1;  // -1: the clip's last frame
     char out[1024] = {0};
     bool running = false;
-    std::string result;  // what the last export wrote, or why it failed
+    double started = 0.0;             // glfwGetTime() when the running export began
+    int seen_in = -1, seen_out = -1;  // the timeline's in/out points the range last followed
+    std::string result;               // what the last export wrote, or why it failed
+    FileBrowser browser;              // the output folder's
 };
 
 // After a project opened: the whole clip, into <project>/export unless a folder was given.

@@ -301,7 +301,8 @@ void Studio::handle_transport_keys() {
 // atlas editor, the view modes' keys, and the transport keys.
 void Studio::handle_keys() {
     ImGuiIO& io = ImGui::GetIO();
-    if (io.WantTextInput) return;
+    // A text field or a dialog (a prompt, the file browser) has the keys.
+    if (io.WantTextInput || ImGui::IsPopupOpen("", ImGuiPopupFlags_AnyPopupId)) return;
     const bool ctrl = io.KeyCtrl;
     if (ctrl && ImGui::IsKeyPressed(GLFW_KEY_S)) {
         if (io.KeyShift)
@@ -386,6 +387,12 @@ int run_studio(const StudioOptions& opts) {
     int code = 0;
     {
         Studio studio(window, offscreen, opts);
+        // Clips or projects dropped on the window open in the next frame, as File > Open does.
+        glfwSetWindowUserPointer(window, &studio);
+        glfwSetDropCallback(window, [](GLFWwindow* w, int n, const char** paths) {
+            static_cast<Studio*>(glfwGetWindowUserPointer(w))
+                ->drop(std::vector<std::string>(paths, paths + n));
+        });
         std::unique_ptr<StudioScript> script;
         if (!opts.script.empty()) {
             script = std::make_unique<StudioScript>(opts.script);
@@ -440,6 +447,7 @@ int run_studio(const StudioOptions& opts) {
             }
             glfwSwapBuffers(window);
         }
+        glfwSetDropCallback(window, nullptr);  // the studio goes at the end of this block
     }
     ImGui_ImplOpenGL3_Shutdown();
     ImGui_ImplGlfw_Shutdown();

@@ -5,9 +5,11 @@
 #include <nlohmann/json.hpp>
 
 #include <string>
+#include <vector>
 
 #include "atlas_panel.h"
 #include "export_panel.h"
+#include "file_browser.h"
 #include "fit_panel.h"
 #include "focus_panel.h"
 #include "studio.h"
@@ -19,7 +21,9 @@ struct GLFWwindow;
 
 namespace refocus {
 
-// The File menu's prompts and the question about unsaved changes.
+// The File menu's prompts, the file browser they open (also from the start screen and the
+// export and atlas panels' own), paths dropped on the window, and the question about unsaved
+// changes.
 struct DialogState {
     bool show_open = false, show_new = false, show_save_as = false, show_unsaved = false;
     enum class Pending {
@@ -30,6 +34,12 @@ struct DialogState {
     } pending = Pending::None;  // after "unsaved changes"
     std::string pending_path, pending_clip;
     char path_buf[1024] = {0}, clip_buf[1024] = {0};
+    // What the browser is open for; Cancel goes back to the prompt it was opened from.
+    enum class Browse { None, Open, NewClip, NewFolder, SaveAs } browsing = Browse::None;
+    bool back_to_prompt = false;
+    FileBrowser browser;
+    std::vector<std::string> dropped;  // dropped on the window: the first opens next frame
+    std::string places_for = "\n";     // the project the browser's places were last set for
 };
 
 class Studio {
@@ -48,6 +58,9 @@ class Studio {
     void new_project(const std::string& clip, const std::string& dir);
     void save();
     void save_as(const std::string& dir);
+    // Paths dropped on the window (GLFW's drop callback, the script's "drop"): the first is
+    // opened in the next frame as File > Open would, asking about unsaved changes first.
+    void drop(const std::vector<std::string>& paths) { m_dialogs.dropped = paths; }
     void start_fit(bool resume) { refocus::start_fit(m_fit, m_ctx, resume); }
     void set_frame(int t) { m_ctx.set_frame(t); }
     void set_key(const std::string& lane, int frame, double value, Easing e) {
@@ -85,6 +98,10 @@ class Studio {
     void draw_side_panel();
     void draw_modals();
     void draw_path_dialogs();
+    void browse(DialogState::Browse what, bool from_prompt, const std::string& dir = {});
+    void draw_browser();
+    void take_requests();                    // dropped paths, the start screen's buttons
+    void ask_open(const std::string& path);  // opens, or asks about unsaved changes first
     void draw_unsaved_dialog();
     void draw_autosave_and_error();
     void ask_unsaved(DialogState::Pending what);

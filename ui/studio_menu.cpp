@@ -1,7 +1,11 @@
 // The menu bar (File, View, the fit's state) and the modal prompts: open, new, save as, unsaved
-// changes, restoring an autosave, errors.
+// changes, restoring an autosave, errors; the file browser the prompts and the start screen
+// open, and paths dropped on the window.
 #include <GLFW/glfw3.h>
 #include <imgui.h>
+
+#include <cstdio>
+#include <string>
 
 #include "studio_app.h"
 #include "util/error.h"
@@ -9,21 +13,47 @@
 namespace refocus {
 
 namespace {
-bool path_popup(const char* title, const char* prompt, char* buf, size_t n, const char* ok) {
+// A typed path with "Browse..." beside it; true when `ok` (or Enter) was pressed. `browse` is
+// set when the browser is asked for: the prompt closes, and the browser comes back to it.
+bool path_popup(const char* title, const char* prompt, char* buf, size_t n, const char* ok,
+                const char* ok_tip, bool& browse) {
     bool go = false;
     if (ImGui::BeginPopupModal(title, nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
         ImGui::TextUnformatted(prompt);
         ImGui::SetNextItemWidth(520);
         if (ImGui::IsWindowAppearing()) ImGui::SetKeyboardFocusHere();
         go = ImGui::InputText("##path", buf, n, ImGuiInputTextFlags_EnterReturnsTrue);
-        go |= ImGui::Button(ok);
+        item_tooltip("Type a path and press Enter, or browse for it");
         ImGui::SameLine();
-        if (ImGui::Button("Cancel") || go) ImGui::CloseCurrentPopup();
+        browse = ImGui::Button("Browse...");
+        item_tooltip("Pick it in the file browser");
+        go |= ImGui::Button(ok);
+        item_tooltip(ok_tip);
+        ImGui::SameLine();
+        const bool cancel = ImGui::Button("Cancel");
+        item_tooltip("Close without doing anything");
+        if (cancel || go || browse) ImGui::CloseCurrentPopup();
         ImGui::EndPopup();
     }
     return go;
 }
+
+// The folder part of a typed path, for the browser to open on; empty when none was typed.
+std::string folder_of(const char* typed) {
+    if (!typed[0]) return "";
+    const fs::path p = fs::absolute(typed);
+    return fs::is_directory(p) ? p.string() : p.parent_path().string();
+}
 }  // namespace
+
+void Studio::ask_open(const std::string& path) {
+    if (m_ctx.doc.dirty()) {
+        m_dialogs.pending_path = path;
+        ask_unsaved(DialogState::Pending::Open);
+    } else {
+        m_ctx.guarded([&] { open_project(path); });
+    }
+}
 
 void Studio::ask_unsaved(DialogState::Pending what) {
     m_dialogs.pending = what;
@@ -36,25 +66,23 @@ void Studio::draw_menu() {
     if (ImGui::BeginMenu("File")) {
         const bool idle = !m_ctx.busy_with_files();
         if (ImGui::MenuItem("New from clip...", "Ctrl+N", false, idle)) d.show_new = true;
+        item_tooltip("Make a project from a video or an image sequence (type or browse)");
         if (ImGui::MenuItem("Open...", "Ctrl+O", false, idle)) d.show_open = true;
+        item_tooltip(
+            "Open a project folder, or a clip (a project is made beside it);\n"
+            "dropping either onto the window does the same");
         if (ImGui::BeginMenu("Open recent", idle)) {
             auto list = recent_projects();
             if (list.empty()) ImGui::MenuItem("(none)", nullptr, false, false);
             for (const auto& r : list)
-                if (ImGui::MenuItem(r.c_str())) {
-                    if (m_ctx.doc.dirty()) {
-                        d.pending_path = r;
-                        ask_unsaved(DialogState::Pending::Open);
-                    } else {
-                        m_ctx.guarded([&] { open_project(r); });
-                    }
-                }
+                if (ImGui::MenuItem(r.c_str())) ask_open(r);
             ImGui::EndMenu();
         }
         if (ImGui::MenuItem("Save", "Ctrl+S", false, m_ctx.doc.is_open()))
             m_ctx.guarded([&] { save(); });
         if (ImGui::MenuItem("Save as...", "Ctrl+Shift+S", false, m_ctx.doc.is_open() && idle))
             d.show_save_as = true;
+        item_tooltip("Copy the project (frames, fit, edits) to a new folder and go on there");
         ImGui::Separator();
         if (ImGui::MenuItem("Quit", "Ctrl+Q")) request_close();
         ImGui::EndMenu();
@@ -70,6 +98,15 @@ void Studio::draw_menu() {
         ImGui::Separator();
         ImGui::MenuItem("Atlas editor", "Tab", &m_viewer.show_atlas);
         if (ImGui::MenuItem("Time slice", nullptr, &m_viewer.slice.on)) m_viewer.slice.dirty = true;
+        if (ImGui::BeginMenu("Preview renderer")) {
+            // Auto: the GLSL passes, the CPU twin when no GL context could be had.
+            using B = ViewRenderer::Backend;
+            const B now = m_ctx.renderer->backend();
+            for (auto [b, label] : {std::pair{B::Auto, "Auto"}, std::pair{B::Gpu, "GPU (GLSL)"},
+                                    std::pair{B::Cpu, "CPU"}})
+                if (ImGui::MenuItem(label, nullptr, now == b)) m_ctx.renderer->set_backend(b);
+            ImGui::EndMenu();
+        }
         ImGui::EndMenu();
     }
     const auto st = m_ctx.worker->status();
@@ -83,24 +120,37 @@ void Studio::draw_menu() {
 
 void Studio::draw_path_dialogs() {
     DialogState& d = m_dialogs;
+    bool want_browse = false;
     if (path_popup("Open project", "Project folder, or a clip (video, image folder or pattern):",
-                   d.path_buf, sizeof d.path_buf, "Open")) {
-        if (m_ctx.doc.dirty()) {
-            d.pending_path = d.path_buf;
-            ask_unsaved(DialogState::Pending::Open);
-        } else {
-            m_ctx.guarded([&] { open_project(d.path_buf); });
-        }
-    }
+                   d.path_buf, sizeof d.path_buf, "Open",
+                   "Open the project; a clip gets a project made beside it", want_browse))
+        ask_open(d.path_buf);
+    if (want_browse) browse(DialogState::Browse::Open, true, folder_of(d.path_buf));
     if (ImGui::BeginPopupModal("New project", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
         ImGui::TextUnformatted("Clip (video file, image folder or printf pattern):");
         ImGui::SetNextItemWidth(520);
         ImGui::InputText("##clip", d.clip_buf, sizeof d.clip_buf);
+        item_tooltip(
+            "A video (mp4, mov, mkv, ...), a folder of frames, or a pattern such as\n"
+            "shot/frame_%04d.exr");
+        ImGui::SameLine();
+        const bool browse_clip = ImGui::Button("Browse...##clip");
+        item_tooltip("Pick the clip in the file browser (a frame stands for its folder)");
         ImGui::TextUnformatted("New project folder (created):");
         ImGui::SetNextItemWidth(520);
         ImGui::InputText("##dir", d.path_buf, sizeof d.path_buf);
-        if (ImGui::Button("Create")) {
-            ImGui::CloseCurrentPopup();
+        item_tooltip("The folder the project is made in: new, or empty");
+        ImGui::SameLine();
+        const bool browse_dir = ImGui::Button("Browse...##dir");
+        item_tooltip("Pick a folder, or name a new one, in the file browser");
+        const bool create = ImGui::Button("Create");
+        item_tooltip("Decode the clip's frames into the new project, then open it");
+        ImGui::SameLine();
+        const bool cancel = ImGui::Button("Cancel");
+        item_tooltip("Close without doing anything");
+        if (create || cancel || browse_clip || browse_dir) ImGui::CloseCurrentPopup();
+        ImGui::EndPopup();
+        if (create) {
             if (m_ctx.doc.dirty()) {
                 d.pending_clip = d.clip_buf;
                 d.pending_path = d.path_buf;
@@ -109,14 +159,113 @@ void Studio::draw_path_dialogs() {
                 m_ctx.guarded([&] { new_project(d.clip_buf, d.path_buf); });
             }
         }
-        ImGui::SameLine();
-        if (ImGui::Button("Cancel")) ImGui::CloseCurrentPopup();
-        ImGui::EndPopup();
+        if (browse_clip) browse(DialogState::Browse::NewClip, true, folder_of(d.clip_buf));
+        if (browse_dir) browse(DialogState::Browse::NewFolder, true);
     }
+    want_browse = false;
     if (path_popup("Save project as",
                    "New project folder (the project, its fit and edits are copied):", d.path_buf,
-                   sizeof d.path_buf, "Save"))
+                   sizeof d.path_buf, "Save", "Copy the project there and go on in the copy",
+                   want_browse))
         m_ctx.guarded([&] { save_as(d.path_buf); });
+    if (want_browse) browse(DialogState::Browse::SaveAs, true);
+}
+
+// Opens the studio's browser for a prompt (or the start screen), on `dir` when given.
+void Studio::browse(DialogState::Browse what, bool from_prompt, const std::string& dir) {
+    using B = DialogState::Browse;
+    DialogState& d = m_dialogs;
+    d.browsing = what;
+    d.back_to_prompt = from_prompt;
+    BrowseOptions o;
+    o.dir = dir;
+    if (what == B::Open) {
+        o.title = "Open a project or a clip";
+    } else if (what == B::NewClip) {
+        o.filter = BrowseFilter::Clips;
+        o.title = "Clip for the new project";
+        o.ok = "Choose";
+    } else {
+        // A folder: the one typed in the prompt, else beside the clip (new) or the project
+        // (save as).
+        o.mode = BrowseMode::Folder;
+        o.ok = what == B::SaveAs ? "Save" : "Choose";
+        o.title = what == B::SaveAs ? "Save the project as" : "Folder for the new project";
+        fs::path p = from_prompt && d.path_buf[0] ? fs::absolute(d.path_buf) : fs::path();
+        if (p.empty() && what == B::NewFolder && d.clip_buf[0]) {
+            const fs::path clip = fs::absolute(d.clip_buf);
+            p = clip.parent_path() / (clip.stem().string() + "_refocus");
+        }
+        if (p.empty() && what == B::SaveAs && m_ctx.doc.is_open())
+            p = m_ctx.doc.project().dir.parent_path() / (m_ctx.doc.project().name + "_copy");
+        if (!p.empty() && o.dir.empty()) o.dir = p.parent_path().string();
+        if (!p.empty() && !fs::is_directory(p)) o.name = p.filename().string();
+    }
+    d.browser.open(o);
+}
+
+// What the browser picked goes where it was asked for: the prompt's field, or straight on
+// (open, save as). Cancel goes back to the prompt it came from.
+void Studio::draw_browser() {
+    using B = DialogState::Browse;
+    DialogState& d = m_dialogs;
+    const BrowseEvent ev = d.browser.draw();
+    if (ev == BrowseEvent::None) return;
+    const B what = d.browsing;
+    d.browsing = B::None;
+    if (ev == BrowseEvent::Cancelled) {
+        if (!d.back_to_prompt) return;
+        d.show_open = what == B::Open;
+        d.show_new = what == B::NewClip || what == B::NewFolder;
+        d.show_save_as = what == B::SaveAs;
+        return;
+    }
+    const std::string& p = d.browser.picked();
+    if (what == B::Open) ask_open(p);
+    if (what == B::SaveAs) m_ctx.guarded([&] { save_as(p); });
+    if (what == B::NewClip) {
+        std::snprintf(d.clip_buf, sizeof d.clip_buf, "%s", p.c_str());
+        // The same folder File > Open would make for the clip, unless one was given.
+        const fs::path clip(p);
+        if (!d.path_buf[0])
+            std::snprintf(d.path_buf, sizeof d.path_buf, "%s",
+                          (clip.parent_path() / (clip.stem().string() + "_refocus")).c_str());
+        d.show_new = true;
+    }
+    if (what == B::NewFolder) {
+        std::snprintf(d.path_buf, sizeof d.path_buf, "%s", p.c_str());
+        d.show_new = true;
+    }
+}
+
+// Paths dropped on the window and the start screen's buttons, as the File menu does them.
+void Studio::take_requests() {
+    DialogState& d = m_dialogs;
+    if (!d.dropped.empty()) {
+        const std::string first = d.dropped.front();
+        if (d.dropped.size() > 1)
+            m_ctx.info = "dropped " + std::to_string(d.dropped.size()) + " paths: opened " + first;
+        d.dropped.clear();
+        ask_open(first);
+    }
+    const StartRequest r = take_start_request();
+    if (r.kind == StartRequest::Open) browse(DialogState::Browse::Open, false);
+    if (r.kind == StartRequest::NewFromClip) {
+        d.clip_buf[0] = d.path_buf[0] = 0;
+        browse(DialogState::Browse::NewClip, false);
+    }
+    if (r.kind == StartRequest::OpenPath) ask_open(r.path);
+    // The browsers' places: the open project's folder and the recent projects that still exist.
+    const std::string project = m_ctx.doc.is_open() ? m_ctx.doc.project().dir.string() : "";
+    if (project != d.places_for) {
+        d.places_for = project;
+        BrowserPlaces& pl = browser_places();
+        pl.project = project;
+        pl.recent.clear();
+        std::error_code ec;
+        for (const std::string& r : recent_projects())
+            if (fs::is_directory(r, ec)) pl.recent.push_back(r);
+    }
 }
 
 // Save, discard or cancel, then go on with what was asked (quit, open, new).
@@ -199,7 +348,9 @@ void Studio::draw_modals() {
     open_popup(m_dialogs.show_new, "New project");
     open_popup(m_dialogs.show_save_as, "Save project as");
     open_popup(m_dialogs.show_unsaved, "Unsaved changes");
+    take_requests();
     draw_path_dialogs();
+    draw_browser();
     draw_unsaved_dialog();
     draw_autosave_and_error();
 }

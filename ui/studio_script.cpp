@@ -106,8 +106,9 @@ int StudioScript::advance(Studio& studio) {
 bool StudioScript::run_step(Studio& st, const json& step) {
     const bool first = m_settle++ == 0;
     // The step's kind is its key; each group below answers for its own keys.
-    for (auto group : {&StudioScript::project_step, &StudioScript::view_step,
-                       &StudioScript::edit_step, &StudioScript::check_step})
+    for (auto group :
+         {&StudioScript::project_step, &StudioScript::view_step, &StudioScript::edit_step,
+          &StudioScript::check_step, &StudioScript::file_step})
         if (std::optional<bool> done = (this->*group)(st, step, first)) return *done;
     throw Error("unknown step " + step.dump());
 }
@@ -398,6 +399,68 @@ std::optional<bool> StudioScript::check_step(Studio& st, const json& step, bool)
     }
     if (step.contains("quit")) return true;
     return std::nullopt;
+}
+
+// drop, browser: through the same code as a drop on the window and a click in the browser.
+std::optional<bool> StudioScript::file_step(Studio& st, const json& step, bool first) {
+    DialogState& d = st.m_dialogs;
+    const bool settled = !st.ingesting() && !st.saving_as() && worker_idle(st) &&
+                         d.pending == DialogState::Pending::None;
+    if (step.contains("drop")) {
+        if (first) st.drop({step["drop"].get<std::string>()});
+        if (!d.dropped.empty() || m_settle < 3) return false;
+        return settled && st.m_ctx.doc.is_open();
+    }
+    if (!step.contains("browser")) return std::nullopt;
+    const json& b = step["browser"];
+    if (b.is_boolean()) {
+        if (b.get<bool>()) throw Error("\"browser\" is an object ({\"dialog\": ...}) or false");
+        if (first) d.browser.close(), st.m_atlas.browser().close();
+        return !d.browser.is_open() && !st.m_atlas.browser().is_open();
+    }
+    using B = DialogState::Browse;
+    const std::string dialog = b.value("dialog", "open");
+    const bool atlas = dialog == "atlas_export" || dialog == "atlas_import";
+    FileBrowser& fb = atlas ? st.m_atlas.browser() : d.browser;
+    if (first && atlas) {
+        st.m_viewer.show_atlas = true;  // the panel draws its browser
+        if (dialog == "atlas_export")
+            st.m_atlas.ask_export(b.value("dir", ""));
+        else
+            st.m_atlas.ask_import(b.value("dir", ""));
+    } else if (first) {
+        const B what = dialog == "open"         ? B::Open
+                       : dialog == "new"        ? B::NewClip
+                       : dialog == "new_folder" ? B::NewFolder
+                       : dialog == "save_as"    ? B::SaveAs
+                                                : B::None;
+        if (what == B::None)
+            throw Error("unknown browser dialog '" + dialog +
+                        "' (open, new, new_folder, save_as, atlas_export, atlas_import)");
+        st.browse(what, false, b.value("dir", ""));
+    }
+    if (m_settle < 3) return false;  // drawn
+    if (m_settle == 3) {
+        const FolderListing& l = fb.listing();
+        if (!l.error.empty()) throw Error(l.error);
+        for (const std::string& name : b.value("shows", std::vector<std::string>{})) {
+            bool found = false;
+            for (const FolderEntry& e : l.entries) found |= e.name == name;
+            if (!found) throw Error("the browser on " + l.dir + " does not list " + name);
+        }
+        if (b.contains("select") && !fb.select(b["select"].get<std::string>()))
+            throw Error("the browser on " + l.dir + " has no " + b["select"].dump() + " to select");
+        if (b.contains("pick") && !fb.accept(b["pick"].get<std::string>()))
+            throw Error("the browser on " + l.dir + " cannot pick " + b["pick"].dump() + ": " +
+                        (fb.problem().empty() ? "not listed" : fb.problem()));
+    }
+    if (atlas && b.contains("pick") && !fb.is_open() && m_settle > 5) {
+        if (!st.m_atlas.error().empty()) throw Error(st.m_atlas.error());
+        return true;
+    }
+    // A folder picked is entered (the browser stays); anything else is done when it is handled.
+    if (!b.contains("pick") || fb.is_open()) return m_settle > 5;
+    return d.browsing == B::None && settled;
 }
 
 }  // namespace refocus

@@ -23,6 +23,13 @@
 //   {"wait_fitting": step}  {"restore_autosave": true}  {"crash": true} (SIGKILL, as kill -9)
 //   {"fit": {..., "wait": false}} starts the fit and goes on
 //   {"expect": {..., "autosave_offered": b, "modified": b}}   {"quit": true}
+//   {"drop": path}  (as if dropped on the window: opens it like File > Open; waits for it)
+//   {"browser": {"dialog": "open|new|new_folder|save_as|atlas_export|atlas_import", "dir": d,
+//                "shows": [name, ...], "select": name, "pick": name}}  (opens that file browser
+//   on d; "shows" must be listed; "select" clicks a name; "pick" double-clicks it (open
+//   dialogs) or types it as the name and presses the button (folder, save), then waits for
+//   what follows: a folder entered, a project opened, an atlas written)
+//   {"browser": false}  (closes it)
 #include <nlohmann/json.hpp>
 
 #include <optional>
@@ -47,6 +54,7 @@ class StudioScript {
     std::optional<bool> edit_step(Studio& st, const nlohmann::json& step, bool first);
     std::optional<bool> check_step(Studio& st, const nlohmann::json& step, bool first);
     bool play_step(Studio& st, const nlohmann::json& play, bool first);
+    std::optional<bool> file_step(Studio& st, const nlohmann::json& step, bool first);
     bool worker_idle(Studio& st) const;  // throws the fit's error when it failed
     std::string m_path;
     nlohmann::json m_steps;

@@ -119,7 +119,7 @@ std::string ViewRenderer::backend_name() const {
     const Backend b = m_backend;
     if (b == Backend::Cpu || !m_offscreen) return "CPU";
     if (b == Backend::Gpu) return "GPU (GLSL)";
-    return is_software_gl(m_gl_renderer) ? "CPU (auto: software GL)" : "GPU (GLSL, auto)";
+    return is_software_gl(m_gl_renderer) ? "GLSL (auto; software GL)" : "GPU (GLSL, auto)";
 }
 
 std::shared_ptr<const RenderedFrame> ViewRenderer::get(int mode, int frame) const {
@@ -210,8 +210,7 @@ void ViewRenderer::loop() {
 
 PreviewBackend& ViewRenderer::preview() {
     const Backend b = m_backend;
-    const bool gpu = m_offscreen && m_gpu_error.empty() &&
-                     (b == Backend::Gpu || (b == Backend::Auto && !is_software_gl(m_gl_renderer)));
+    const bool gpu = m_offscreen && m_gpu_error.empty() && b != Backend::Cpu;
     if (gpu && !m_gpu) {
         try {
             glfwMakeContextCurrent(m_offscreen);

@@ -175,11 +175,28 @@ bool draw_placeholder(StudioContext& ctx) {
         return true;
     }
     if (!ctx.source) {
-        ImGui::TextWrapped(
-            "No project open.\n\nFile > New from clip... makes a project from a video or an image "
-            "sequence; File > Open... opens a project folder (try projects/sample after `refocus "
-            "new "
-            "projects/sample/input.mp4 -o out/sample`).");
+        // The buttons leave a request that the studio runs next frame through its own dialogs
+        // (file_browser.h, included with atlas_panel.h).
+        ImGui::TextUnformatted("No project open.");
+        ImGui::Spacing();
+        if (ImGui::Button("Open project...")) post_start_request({StartRequest::Open, {}});
+        item_tooltip(
+            "Pick a project folder in the file browser, or a clip: a project is made\n"
+            "beside it (File > Open..., Ctrl+O, types a path)");
+        ImGui::SameLine();
+        if (ImGui::Button("New from clip...")) post_start_request({StartRequest::NewFromClip, {}});
+        item_tooltip("Pick a video or an image sequence, then where the new project goes");
+        ImGui::TextDisabled("or drop a clip or a project folder onto this window");
+        const std::vector<std::string>& recent = browser_places().recent;
+        if (!recent.empty()) {
+            ImGui::Spacing();
+            ImGui::TextDisabled("Recent projects");
+        }
+        for (const std::string& r : recent) {
+            if (ImGui::Selectable(r.c_str(), false, 0, ImVec2(ImGui::CalcTextSize(r.c_str()).x, 0)))
+                post_start_request({StartRequest::OpenPath, r});
+            item_tooltip("Open this project");
+        }
         return true;
     }
     return false;
