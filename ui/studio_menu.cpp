@@ -3,6 +3,7 @@
 #include <GLFW/glfw3.h>
 #include <imgui.h>
 
+#include "edit_menu.h"
 #include "studio_app.h"
 #include "util/error.h"
 
@@ -59,6 +60,7 @@ void Studio::draw_menu() {
         if (ImGui::MenuItem("Quit", "Ctrl+Q")) request_close();
         ImGui::EndMenu();
     }
+    draw_edit_menu(m_ctx);
     if (ImGui::BeginMenu("View")) {
         for (const ViewModeInfo& m : view_modes()) {
             const std::string key =
