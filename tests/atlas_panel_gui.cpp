@@ -82,7 +82,7 @@ TEST_CASE("atlas panel: paint with the mouse, see it, undo/redo with the keyboar
     panel.set_edits(&edits);
     Image bg(64, 48, 3, 0.2f);
     panel.set_bases(bg, Image());
-    CHECK(w.frame(panel));  // first frame reports
+    CHECK_FALSE(w.frame(panel));  // the fit's atlas is no edit: opening the panel changes nothing
     CHECK_FALSE(w.frame(panel));
     auto mid = panel.atlas_to_screen(32, 24);
     auto grey = w.pixel(mid);
@@ -135,6 +135,8 @@ TEST_CASE("atlas panel: paint with the mouse, see it, undo/redo with the keyboar
     CHECK(panel.paint_stroke(0, {{{50, 40}}, {{60, 40}}}, b));
     CHECK(w.frame(panel));
     CHECK(w.pixel(panel.atlas_to_screen(55.5f, 40.5f))[2] == 255);
+    panel.set_bases(Image(64, 48, 3, 0.3f), Image());  // the fit goes on under the paint
+    CHECK_FALSE(w.frame(panel));                       // no edit of the artist's
     const fs::path dir = test::scratch_dir("atlas_panel_gui");
     CHECK(panel.export_atlas(0, (dir / "a.png").string(), PixelFormat::Png8));
     CHECK(read_image_file((dir / "a.png").string()).image.width == 64);

@@ -240,4 +240,28 @@ TEST_CASE("studio killed during a fit offers the autosave on reopen and restores
     INFO(reopened.output);
     CHECK(reopened.code == 0);
 }
+
+TEST_CASE("scripted studio session: key moves, undo and redo, the atlas editor leaves no change") {
+    if (run("command -v xvfb-run").code != 0) {
+        MESSAGE("xvfb-run not installed: skipping");
+        return;
+    }
+    fs::path dir = scratch_dir("studio_keys");
+    RunResult r = cli("synth --scene tripod -o '" + (dir / "clip").string() +
+                      "' --size 64x36 --frames 6 --seed 2");
+    REQUIRE(r.code == 0);
+    const std::string script = std::string(REFOCUS_SOURCE_DIR) + "/tests/gui/keys.json";
+    r = run("cd '" + dir.string() + "' && XDG_CONFIG_HOME='" + dir.string() + "' KEYS_CLIP='" +
+            (dir / "clip/input_%04d.png").string() + "' xvfb-run -a -s '-screen 0 1280x800x24' " +
+            std::string(REFOCUS_STUDIO) + " --size 1280x800 --script '" + script + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    // Saved after the last move (0 and 5), before the undo and redo that followed.
+    auto j = nlohmann::json::parse(read_text_file((dir / "keys_proj/project.json").string()));
+    REQUIRE(j["focus"]["focus"].size() == 2);
+    CHECK(j["focus"]["focus"][0]["frame"] == 0);
+    CHECK(j["focus"]["focus"][1]["frame"] == 5);
+    CHECK(j["focus"]["focus"][1]["easing"] == "ease_in");
+    CHECK(fs::exists(dir / "keys.png"));
+}
 #endif

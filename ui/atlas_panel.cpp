@@ -34,7 +34,8 @@ AtlasPanel::~AtlasPanel() {
 
 void AtlasPanel::set_edits(ProjectEdits* edits) {
     m_edits = edits;
-    m_reported[0] = m_reported[1] = -1;
+    // The edits as given (loaded with the project) are no change to report.
+    for (int i = 0; i < 2; ++i) m_reported[i] = edits ? edits->layer(i).version() : -1;
     m_tex_version[0] = m_tex_version[1] = -1;
 }
 
@@ -60,10 +61,11 @@ void AtlasPanel::set_bases(const Image& bg, const Image& fg) {
     for (int i = 0; i < 2; ++i) {
         if (base[i]->empty()) continue;
         AtlasEditor& ed = m_edits->layer(i);
-        // A new base is no edit: the caller already has it (unless an edit was still unreported).
+        // A new base is no edit, with or without paint over it (the caller re-uploads its
+        // atlases when they arrive); only an edit not yet reported stays to report.
         const bool up_to_date = m_reported[i] == ed.version();
         guarded([&] { ed.set_base(*base[i]); });
-        if (up_to_date && !ed.has_edits()) m_reported[i] = ed.version();
+        if (up_to_date) m_reported[i] = ed.version();
     }
 }
 

@@ -10,7 +10,7 @@
 // Use from the UI thread with a current GL context:
 //     AtlasPanel panel; panel.set_edits(&edits);
 //     panel.set_bases(bg, fg);            // whenever the fit's atlases change
-//     if (panel.draw()) reupload_preview_atlases(edits.bg.result(), ...);
+//     if (panel.draw()) document_changed();  // a stroke, an undo, an import
 #include <array>
 #include <functional>
 #include <string>
@@ -34,8 +34,9 @@ class AtlasPanel {
     // The fit's atlases (linear RGB); `fg` empty with one layer. The edits are kept.
     void set_bases(const Image& bg, const Image& fg);
 
-    // Draws the window; true when an edited result changed since the last draw() (strokes,
-    // undo, import, programmatic calls), so the caller re-uploads its preview atlases.
+    // Draws the window; true when the artist's edits changed since the last draw() (strokes,
+    // undo, import, programmatic calls): the document changed. New bases (set_bases) and the
+    // edits given to set_edits are not changes.
     bool draw(bool* open = nullptr);
 
     // Programmatic API (scripts, tests): layer 0 = background, 1 = foreground. Points in atlas

@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <cstdio>
 
+#include "edit_menu.h"
 #include "io/image_file.h"
 #include "layout.h"
 #include "log_panel.h"
@@ -323,6 +324,7 @@ void Studio::handle_keys() {
 void Studio::frame() {
     m_ctx.times.frame_start = glfwGetTime();
     handle_keys();
+    handle_edit_keys(m_ctx, m_viewer.show_atlas);
     if (glfwWindowShouldClose(m_window) && !m_quit) {
         glfwSetWindowShouldClose(m_window, 0);
         request_close();

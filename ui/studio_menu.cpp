@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <string>
 
+#include "edit_menu.h"
 #include "studio_app.h"
 #include "util/error.h"
 
@@ -87,6 +88,7 @@ void Studio::draw_menu() {
         if (ImGui::MenuItem("Quit", "Ctrl+Q")) request_close();
         ImGui::EndMenu();
     }
+    draw_edit_menu(m_ctx);
     if (ImGui::BeginMenu("View")) {
         for (const ViewModeInfo& m : view_modes()) {
             const std::string key =

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "edit_menu.h"
 #include "io/image_file.h"
 #include "studio_app.h"
 #include "studio_presets.h"
@@ -44,10 +45,12 @@ void expand_env(json& j) {
 }
 
 Easing parse_easing(const std::string& e) {
-    if (e == "linear") return Easing::Linear;
+    Easing out;
     if (e == "ease" || e == "ease-in-out") return Easing::EaseInOut;
-    if (e == "hold") return Easing::Hold;
-    throw Error("unknown easing '" + e + "' (linear, ease, hold)");
+    if (e == "ease-in") return Easing::EaseIn;
+    if (e == "ease-out") return Easing::EaseOut;
+    if (parse_easing_name(e, out)) return out;
+    throw Error("unknown easing '" + e + "' (linear, ease, ease_in, ease_out, hold)");
 }
 }  // namespace
 
@@ -270,13 +273,29 @@ bool StudioScript::play_step(Studio& st, const json& p, bool first) {
     return true;
 }
 
-// key, focus_click, track_click, paint, export.
+// key, move_key, delete_key, undo, redo, focus_click, track_click, paint, export.
 std::optional<bool> StudioScript::edit_step(Studio& st, const json& step, bool first) {
     StudioContext& ctx = st.m_ctx;
     if (step.contains("key")) {
         const json& k = step["key"];
         st.set_key(k.at("lane"), k.at("frame"), k.at("value"),
                    parse_easing(k.value("easing", "ease")));
+        ctx.doc.commit("Key " + k.at("lane").get<std::string>());
+        return true;
+    }
+    if (step.contains("move_key")) {
+        const json& k = step["move_key"];
+        move_key(ctx, k.at("lane"), k.at("from"), k.at("to"));
+        return true;
+    }
+    if (step.contains("delete_key")) {
+        delete_key(ctx, step["delete_key"].at("lane"), step["delete_key"].at("frame"));
+        return true;
+    }
+    if (step.contains("undo") || step.contains("redo")) {
+        const bool undo = step.contains("undo");
+        if (!(undo ? undo_document(ctx) : redo_document(ctx)))
+            throw Error(std::string("nothing to ") + (undo ? "undo" : "redo"));
         return true;
     }
     if (step.contains("focus_click") || step.contains("track_click")) {
@@ -319,6 +338,35 @@ std::optional<bool> StudioScript::edit_step(Studio& st, const json& step, bool f
     return std::nullopt;
 }
 
+namespace {
+// The expectations on the document: "dirty", "undo" / "redo" (the labels of the entries next
+// in line, "" for none), "key_frames" ({lane: [frames]}), "easing" ({lane: [easing names]}).
+void expect_document(StudioContext& ctx, const json& e) {
+    if (e.contains("dirty") && e["dirty"].get<bool>() != ctx.doc.dirty())
+        throw Error(std::string("expected the document ") +
+                    (e["dirty"].get<bool>() ? "modified" : "unmodified"));
+    for (const char* which : {"undo", "redo"}) {
+        if (!e.contains(which)) continue;
+        const std::string have = which[0] == 'u' ? ctx.doc.undo_label() : ctx.doc.redo_label();
+        if (have != e[which].get<std::string>())
+            throw Error(std::string("expected ") + which + " '" + e[which].get<std::string>() +
+                        "', found '" + have + "'");
+    }
+    for (const char* what : {"key_frames", "easing"}) {
+        if (!e.contains(what)) continue;
+        for (auto& [lane, want] : e[what].items()) {
+            json have = json::array();
+            const Lane& l = ctx.doc.focus().*(focus_lanes()[focus_lane_index(lane)].lane);
+            for (const Keyframe& k : l.keys)
+                have.push_back(what[0] == 'k' ? json(k.frame) : json(easing_name(k.easing)));
+            if (have != want)
+                throw Error(std::string("expected ") + what + " " + want.dump() + " on lane " +
+                            lane + ", found " + have.dump());
+        }
+    }
+}
+}  // namespace
+
 // screenshot, expect, stats, quit.
 std::optional<bool> StudioScript::check_step(Studio& st, const json& step, bool) {
     StudioContext& ctx = st.m_ctx;
@@ -347,6 +395,7 @@ std::optional<bool> StudioScript::check_step(Studio& st, const json& step, bool)
             throw Error("expected the project to be fitted");
         if (e.contains("track") && e["track"].get<bool>() != ctx.doc.focus().track.has_value())
             throw Error("expected a tracked focus point");
+        expect_document(ctx, e);
         if (e.contains("autosave_offered") &&
             e["autosave_offered"].get<bool>() != ctx.doc.has_newer_autosave())
             throw Error(std::string("expected ") +

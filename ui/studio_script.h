@@ -6,7 +6,10 @@
 //   {"open": path}                         {"new": {"clip": c, "project": dir}}
 //   {"fit": {"preset": p, "iters": n | "minutes": m, "resume": b}}
 //   {"wait_depth": true}                   {"frame": n}          {"mode": "refocused"}
-//   {"key": {"lane": l, "frame": n, "value": v, "easing": "linear|ease|hold"}}
+//   {"key": {"lane": l, "frame": n, "value": v,
+//            "easing": "linear|ease|ease_in|ease_out|hold"}}
+//   {"move_key": {"lane": l, "from": a, "to": b}}   {"delete_key": {"lane": l, "frame": n}}
+//   {"undo": true}  {"redo": true}  (the document's focus changes; fails when there is none)
 //   {"focus_click": {"frame": n, "x": x, "y": y}}   {"track_click": {...same...}}
 //   {"paint": {"layer": "bg|fg", "points": [[x, y], ...], "color": [r, g, b], "size": s,
 //              "hardness": h, "opacity": o}}        (atlas px, linear colour)
@@ -15,7 +18,9 @@
 //   {"time_slice": {"row": y, "save": "slice.png"}}  (shows the slice of the current view, waits
 //   for it; "save" writes it, x → column, y → frame)   {"time_slice": false}  (hides it)
 //   {"save": true}  {"save_as": dir}  {"reopen": true}  {"screenshot": path}
-//   {"expect": {"keys": {"focus": n, ...}, "edits": true|false, "fitted": true}}
+//   {"expect": {"keys": {"focus": n, ...}, "edits": true|false, "fitted": true, "dirty": b,
+//               "undo": label, "redo": label, "key_frames": {"focus": [frames]},
+//               "easing": {"focus": ["linear", ...]}}}
 //   {"stats": path}  (UI frame times as JSON; prints "longest UI frame: <ms> ms")
 //   {"play": {"from": n, "frames": n, "cache": true, "min_distinct": n}}  (prints "playback:
 //   <distinct> distinct frames of <shown>")   {"window_size": [w, h]}

@@ -1,7 +1,7 @@
 #pragma once
 // The timeline under the viewer: play / pause, frame steps, the playhead slider, and one lane
-// per focus parameter with its keyframes (click a lane to move the playhead, right-click a
-// keyframe to delete it).
+// per focus parameter with its keyframes (key_lanes.h: select, move, copy, ease, delete).
+#include "key_lanes.h"
 
 #include <string>
 
@@ -13,6 +13,7 @@ struct TimelineState {
     bool playing = false;
     int rate = 1;             // playback speed and direction: ±1, ±2, ±4, ±8 × the clip's fps
     double play_clock = 0.0;  // the time the frame shown was due, while playing
+    KeyLaneState keys;
 };
 
 void toggle_playback(TimelineState& s);

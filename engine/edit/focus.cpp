@@ -20,8 +20,22 @@ const char* easing_name(Easing e) {
             return "ease_in_out";
         case Easing::Hold:
             return "hold";
+        case Easing::EaseIn:
+            return "ease_in";
+        case Easing::EaseOut:
+            return "ease_out";
     }
     return "?";
+}
+
+bool parse_easing_name(const std::string& name, Easing& out) {
+    for (Easing e :
+         {Easing::Linear, Easing::EaseInOut, Easing::Hold, Easing::EaseIn, Easing::EaseOut})
+        if (name == easing_name(e)) {
+            out = e;
+            return true;
+        }
+    return false;
 }
 
 double Lane::eval(double frame, double fallback) const {
@@ -38,6 +52,12 @@ double Lane::eval(double frame, double fallback) const {
             return a.value;
         case Easing::EaseInOut:
             return a.value + s * s * (3 - 2 * s) * (b.value - a.value);
+        // Quadratic ease-in and ease-out: R. Penner, "Motion, Tweening, and Easing", ch. 7 of
+        // Programming Macromedia Flash MX (2002), easeInQuad and easeOutQuad.
+        case Easing::EaseIn:
+            return a.value + s * s * (b.value - a.value);
+        case Easing::EaseOut:
+            return a.value + s * (2 - s) * (b.value - a.value);
         case Easing::Linear:
             break;
     }
@@ -152,14 +172,9 @@ FocusTrack FocusTrack::from_json(const json& j, const std::string& label) {
             const std::string e = k.contains("easing") && k["easing"].is_string()
                                       ? k["easing"].get<std::string>()
                                       : (k.contains("easing") ? "?" : "linear");
-            if (e == "linear")
-                key.easing = Easing::Linear;
-            else if (e == "ease_in_out")
-                key.easing = Easing::EaseInOut;
-            else if (e == "hold")
-                key.easing = Easing::Hold;
-            else
-                bad(f + ".easing", "unknown easing (use linear, ease_in_out or hold)");
+            if (!parse_easing_name(e, key.easing))
+                bad(f + ".easing",
+                    "unknown easing (use linear, ease_in_out, ease_in, ease_out or hold)");
             Lane& l = ft.*lane;
             if (std::any_of(l.keys.begin(), l.keys.end(),
                             [&](const Keyframe& o) { return o.frame == key.frame; }))

@@ -15,8 +15,11 @@ namespace refocus {
 struct DepthModel;
 struct Project;
 
-enum class Easing { Linear, EaseInOut, Hold };
-const char* easing_name(Easing e);  // "linear", "ease_in_out", "hold"
+enum class Easing { Linear, EaseInOut, Hold, EaseIn, EaseOut };
+// "linear", "ease_in_out", "hold", "ease_in", "ease_out" (project.json's names)
+const char* easing_name(Easing e);
+// The easing named `name` (easing_name's names); false when there is none.
+bool parse_easing_name(const std::string& name, Easing& out);
 
 struct Keyframe {
     int frame = 0;
@@ -25,7 +28,8 @@ struct Keyframe {
 };
 
 // Keys sorted by frame, at most one per frame. Between keys k and k+1, with s = (frame − f_k) /
-// (f_{k+1} − f_k): Linear v_k + s·Δv; EaseInOut v_k + (3s² − 2s³)·Δv (smoothstep); Hold v_k.
+// (f_{k+1} − f_k): Linear v_k + s·Δv; EaseInOut v_k + (3s² − 2s³)·Δv (smoothstep); EaseIn
+// v_k + s²·Δv and EaseOut v_k + (1 − (1 − s)²)·Δv (Penner's quadratic easing); Hold v_k.
 // Before the first key and after the last the nearest key's value holds.
 struct Lane {
     std::vector<Keyframe> keys;

@@ -26,6 +26,9 @@ void StudioDoc::load_work(const Project& from, const fs::path& edits_from) {
     Project where = from;
     where.dir = edits_from;
     m_edits = ProjectEdits::load(where);
+    m_undo.clear();
+    m_redo.clear();
+    m_committed = m_focus;
 }
 
 void StudioDoc::write_work(Project& to) {
@@ -38,11 +41,8 @@ void StudioDoc::open(const std::string& path) {
     auto p = std::make_unique<Project>(Project::load(path));
     StudioDoc next;
     next.load_work(*p, p->dir);
-    const fs::path as = autosave_dir(p->dir) / Project::kFileName;
-    std::error_code ec;
-    next.m_newer_autosave =
-        fs::exists(as) && fs::last_write_time(as, ec) > fs::last_write_time(p->project_file(), ec);
     next.m_project = std::move(p);
+    next.m_newer_autosave = next.autosave_differs();
     *this = std::move(next);
     add_recent_project(m_project->dir.string());
 }
@@ -145,6 +145,63 @@ bool StudioDoc::autosave_if_due(double now_s, double interval_s) {
     fs::create_directories(copy.dir, ec);
     write_work(copy);
     m_autosaved = true;
+    return true;
+}
+
+namespace {
+bool same_edit(const AtlasEditor& a, const AtlasEditor& b) {
+    if (a.has_edits() != b.has_edits()) return false;
+    return !a.has_edits() || (a.width() == b.width() && a.height() == b.height() &&
+                              a.edit().pixels == b.edit().pixels);
+}
+}  // namespace
+
+bool StudioDoc::autosave_differs() const {
+    const fs::path dir = autosave_dir(m_project->dir);
+    const fs::path file = dir / Project::kFileName;
+    if (!fs::exists(file)) return false;
+    try {
+        StudioDoc autosaved;
+        autosaved.load_work(Project::from_json(read_json_file(file), m_project->dir, file.string()),
+                            dir);
+        return autosaved.m_focus.to_json() != m_focus.to_json() ||
+               !same_edit(autosaved.m_edits.bg, m_edits.bg) ||
+               !same_edit(autosaved.m_edits.fg, m_edits.fg);
+    } catch (const std::exception&) {
+        return true;  // offered all the same: restoring it names the problem, Discard removes it
+    }
+}
+
+bool StudioDoc::commit(const std::string& label) {
+    if (!m_project) return false;
+    if (m_focus.to_json() == m_committed.to_json()) return false;
+    m_undo.push_back({m_committed, label});
+    if (m_undo.size() > kUndoLimit) m_undo.erase(m_undo.begin());
+    m_redo.clear();  // a new change ends the branch that was undone
+    m_committed = m_focus;
+    return true;
+}
+
+void StudioDoc::step_history(std::vector<UndoEntry>& from, std::vector<UndoEntry>& to) {
+    UndoEntry e = std::move(from.back());
+    from.pop_back();
+    to.push_back({m_focus, e.label});
+    m_focus = std::move(e.track);
+    m_committed = m_focus;
+    mark_dirty();
+}
+
+bool StudioDoc::undo() {
+    commit("Edit focus");  // a change still in progress becomes the entry undone
+    if (m_undo.empty()) return false;
+    step_history(m_undo, m_redo);
+    return true;
+}
+
+bool StudioDoc::redo() {
+    commit("Edit focus");  // a change in progress is a new branch: nothing is left to redo
+    if (m_redo.empty()) return false;
+    step_history(m_redo, m_undo);
     return true;
 }
 

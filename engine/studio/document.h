@@ -1,6 +1,7 @@
 #pragma once
 // The studio's open document: the project, the artist's work on it (focus keyframes, atlas
-// edits), whether it changed since the last save, autosave and the recent-files list.
+// edits), whether it changed since the last save, the undo history of the focus track,
+// autosave and the recent-files list.
 // Saved work lives in the project folder (project.json "focus" section, edits/); autosave
 // writes to <project>/.autosave/ and never touches the saved files, so a crash or "Discard"
 // cannot lose what was saved, and a crash after a change can be recovered on the next open.
@@ -47,15 +48,37 @@ class StudioDoc {
     // Writes .autosave/ when the document changed since the last save or autosave and
     // `interval_s` passed since the change. Returns true when it wrote.
     bool autosave_if_due(double now_s, double interval_s = 60.0);
-    bool has_newer_autosave() const;  // found when the project was opened
-    void restore_autosave();          // takes the autosaved focus and edits (document dirty)
+    // Found when the project was opened: an autosave whose work (focus keys, edits) differs
+    // from the saved work, whatever the file times (a running fit rewrites project.json).
+    bool has_newer_autosave() const;
+    void restore_autosave();  // takes the autosaved focus and edits (document dirty)
     void discard_autosave();
 
     static fs::path autosave_dir(const fs::path& project_dir);
 
+    // Undo for the focus track (keys, easing, the tracked point): the track as it was before
+    // each finished change, with a label. Change focus() freely, then commit(label) when the
+    // gesture ends (a drag: on release), so that one gesture is one entry. Atlas strokes keep
+    // their own undo (AtlasEditor). Saving keeps the history; opening or restoring starts anew.
+    bool commit(const std::string& label);  // false when the track did not change
+    bool undo();  // commits a change in progress first; false when there is nothing to undo
+    bool redo();
+    bool can_undo() const { return !m_undo.empty(); }
+    bool can_redo() const { return !m_redo.empty(); }
+    std::string undo_label() const { return m_undo.empty() ? "" : m_undo.back().label; }
+    std::string redo_label() const { return m_redo.empty() ? "" : m_redo.back().label; }
+
   private:
+    struct UndoEntry {
+        FocusTrack track;  // undo stack: before the change; redo stack: after it
+        std::string label;
+    };
+    static constexpr size_t kUndoLimit = 500;
+
     void load_work(const Project& from, const fs::path& edits_dir_project);
     void write_work(Project& to);
+    bool autosave_differs() const;
+    void step_history(std::vector<UndoEntry>& from, std::vector<UndoEntry>& to);
 
     std::unique_ptr<Project> m_project;
     FocusTrack m_focus;
@@ -64,6 +87,8 @@ class StudioDoc {
     bool m_autosaved = true;
     double m_changed_at = 0.0;
     bool m_newer_autosave = false;
+    std::vector<UndoEntry> m_undo, m_redo;
+    FocusTrack m_committed;  // the track as of the last commit, undo or redo
 };
 
 // Recent projects, newest first, in $XDG_CONFIG_HOME/refocus/recent.json (or ~/.config/...).
