@@ -84,6 +84,8 @@ void ViewRenderer::open(const std::string& dir, int frames) {
     m_frames = frames;
     ++m_epoch;
     m_failed = false;
+    m_layers.clear();
+    m_layers_tried.clear();
     m_cache.clear();
     m_cache_bytes = 0;
     m_full_ms.clear();
@@ -120,6 +122,13 @@ std::string ViewRenderer::backend_name() const {
     if (b == Backend::Cpu || !m_offscreen) return "CPU";
     if (b == Backend::Gpu) return "GPU (GLSL)";
     return is_software_gl(m_gl_renderer) ? "GLSL (auto; software GL)" : "GPU (GLSL, auto)";
+}
+
+std::shared_ptr<const FitWorker::ViewFrame> ViewRenderer::layers_at(int frame) const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    if (m_layers_generation != m_scene.maps_generation) return nullptr;
+    auto it = m_layers.find(frame);
+    return it == m_layers.end() ? nullptr : it->second;
 }
 
 std::shared_ptr<const RenderedFrame> ViewRenderer::get(int mode, int frame) const {
@@ -176,6 +185,12 @@ bool ViewRenderer::next_work(Work& w) {
             w = {m, t0, 1.0};
             return true;
         }
+    if (m_scene.fitted && !m_layers_tried.count({m_scene.maps_generation, t0}) &&
+        !(m_layers_generation == m_scene.maps_generation && m_layers.count(t0))) {
+        m_layers_tried.insert({m_scene.maps_generation, t0});
+        w = {-1, t0, 1.0};
+        return true;
+    }
     if (!m_ahead) return false;
     for (int d = 1; d < m_frames; ++d)
         for (int m : m_modes)
@@ -229,12 +244,15 @@ PreviewBackend& ViewRenderer::preview() {
 // The fit's layers at `frame`, from the worker (which renders them between two fit steps).
 std::shared_ptr<const FitWorker::ViewFrame> ViewRenderer::layers(int frame,
                                                                  uint64_t maps_generation) {
-    if (maps_generation != m_layers_generation) {
-        m_layers.clear();
-        m_layers_generation = maps_generation;
+    {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        if (maps_generation != m_layers_generation) {
+            m_layers.clear();
+            m_layers_generation = maps_generation;
+        }
+        auto it = m_layers.find(frame);
+        if (it != m_layers.end()) return it->second;
     }
-    auto it = m_layers.find(frame);
-    if (it != m_layers.end()) return it->second;
     auto fut = m_worker.frame_async(frame);
     while (fut.wait_for(std::chrono::milliseconds(50)) != std::future_status::ready) {
         std::lock_guard<std::mutex> lk(m_mutex);
@@ -243,6 +261,8 @@ std::shared_ptr<const FitWorker::ViewFrame> ViewRenderer::layers(int frame,
     std::optional<FitWorker::ViewFrame> v = fut.get();
     if (!v) return nullptr;
     auto p = std::make_shared<const FitWorker::ViewFrame>(std::move(*v));
+    std::lock_guard<std::mutex> lk(m_mutex);
+    if (maps_generation != m_layers_generation) return p;  // the atlases changed meanwhile
     size_t bytes = 0;
     for (auto& [t, l] : m_layers) bytes += layer_bytes(*l);
     if (bytes + layer_bytes(*p) > kLayersBytes) m_layers.clear();
@@ -263,7 +283,12 @@ void ViewRenderer::render(const Work& w) {
     if (!m_source || m_source_dir != dir) {
         m_source = std::make_unique<FrameSource>(dir);
         m_source_dir = dir;
+        std::lock_guard<std::mutex> lk(m_mutex);
         m_layers.clear();
+    }
+    if (w.mode < 0) {  // the layers alone, for click-to-focus in a mode that shows none
+        if (scene->fitted) layers(w.frame, scene->maps_generation);
+        return;
     }
     const ViewModeInfo& mode = view_modes()[w.mode];
     const double t0 = now_ms();

@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -58,6 +59,9 @@ class ViewRenderer {
     Backend backend() const { return m_backend; }
     std::string backend_name() const;
 
+    // The fit's layers at `frame` for the scene last posted, once rendered (click-to-focus reads
+    // depth through them), or null.
+    std::shared_ptr<const FitWorker::ViewFrame> layers_at(int frame) const;
     // The newest picture of (mode, frame), or null.
     std::shared_ptr<const RenderedFrame> get(int mode, int frame) const;
     // True when (mode, frame) is rendered in full for the scene last posted.
@@ -102,11 +106,14 @@ class ViewRenderer {
     std::map<int, double> m_full_ms;
     std::string m_error;
 
+    // Layers per frame, filled by the thread (they change only with the fit's atlases).
+    std::map<int, std::shared_ptr<const FitWorker::ViewFrame>> m_layers;
+    uint64_t m_layers_generation = 0;
+    std::set<std::pair<uint64_t, int>> m_layers_tried;  // asked for once per generation
+
     // The thread's own.
     std::unique_ptr<FrameSource> m_source;
     std::string m_source_dir;
-    std::map<int, std::shared_ptr<const FitWorker::ViewFrame>> m_layers;
-    uint64_t m_layers_generation = 0;
     std::unique_ptr<PreviewBackend> m_cpu, m_gpu;
     std::string m_gpu_error;
     std::thread m_thread;

@@ -298,9 +298,9 @@ void poll_fit_output(ViewerState& v, AtlasPanel& atlas, StudioContext& ctx, bool
     if (modes.size() > 1) show_picture(v.b, modes[1], ctx);
     bool current = true;
     for (int m : modes) current = current && ctx.renderer->current(m, ctx.frame);
-    ctx.view_current = current && !changed;
-    if (v.a.shown && v.a.shown->frame == ctx.frame && v.a.shown->view) ctx.view = v.a.shown->view;
-    if (v.b.shown && v.b.shown->frame == ctx.frame && v.b.shown->view) ctx.view = v.b.shown->view;
+    auto layers = ctx.renderer->layers_at(ctx.frame);
+    if (layers) ctx.view = layers;
+    ctx.view_current = current && !changed && (!ctx.scene.fitted || layers);
     if (std::string e = ctx.renderer->take_error(); !e.empty()) ctx.info = e;
     if (playing && v.a.shown) ctx.playback.pictures.insert(v.a.shown->hash);
 }
