@@ -78,6 +78,48 @@ std::vector<int> frames_of(const Lane& l) {
     return f;
 }
 
+// Mouse and keyboard on the lanes of a 20-frame clip, as a user's hands would.
+struct Hands {
+    Window& w;
+    KeyLaneState& s;
+    StudioContext& ctx;
+    // The screen point of a key (the lanes' geometry: 110 px of labels, 18 px rows).
+    ImVec2 at(int lane, double frame) const {
+        const float lane_w = w.size.x - 110.0f;
+        return ImVec2(w.origin.x + 110.0f + static_cast<float>((frame + 0.5) / 20.0) * lane_w,
+                      w.origin.y + lane * 18.0f + 9.0f);
+    }
+    void mouse(ImVec2 p, bool down, bool shift = false, int button = 0) {
+        w.frame(s, ctx, [=](ImGuiIO& io) {
+            io.MousePos = p;
+            io.MouseDown[button] = down;
+            io.KeyShift = shift;
+        });
+    }
+    void click(ImVec2 p, bool shift = false, int button = 0) {
+        mouse(p, false, shift, button);
+        mouse(p, true, shift, button);
+        mouse(p, false, shift, button);
+    }
+    void drag(ImVec2 from, ImVec2 to) {
+        mouse(from, false);
+        mouse(from, true);
+        for (int i = 1; i <= 4; ++i) {
+            const float u = i / 4.0f;
+            mouse(ImVec2(from.x + u * (to.x - from.x), from.y + u * (to.y - from.y)), true);
+        }
+        mouse(to, false);
+    }
+    void key(int glfw_key, bool ctrl = false) {
+        w.frame(s, ctx, [=](ImGuiIO& io) {
+            io.MousePos = ImVec2(5, 280);
+            io.KeysDown[glfw_key] = true;
+            io.KeyCtrl = ctrl;
+        });
+        w.frame(s, ctx, [](ImGuiIO& io) { io.MousePos = ImVec2(5, 280); });
+    }
+};
+
 }  // namespace
 
 TEST_CASE("key lanes: select, drag, delete, copy and paste with mouse and keys") {
@@ -99,53 +141,18 @@ TEST_CASE("key lanes: select, drag, delete, copy and paste with mouse and keys")
     ctx.doc.commit("setup");
     KeyLaneState s;
     w.frame(s, ctx, {});
-
-    // The screen point of a key (the lanes' geometry: 110 px of labels, 18 px rows).
-    auto at = [&](int lane, double frame) {
-        const float lane_w = w.size.x - 110.0f;
-        return ImVec2(w.origin.x + 110.0f + static_cast<float>((frame + 0.5) / 20.0) * lane_w,
-                      w.origin.y + lane * 18.0f + 9.0f);
-    };
-    auto mouse = [](ImVec2 p, bool down, bool shift = false) {
-        return [p, down, shift](ImGuiIO& io) {
-            io.MousePos = p;
-            io.MouseDown[0] = down;
-            io.KeyShift = shift;
-        };
-    };
-    auto click = [&](ImVec2 p, bool shift = false) {
-        w.frame(s, ctx, mouse(p, false, shift));
-        w.frame(s, ctx, mouse(p, true, shift));
-        w.frame(s, ctx, mouse(p, false, shift));
-    };
-    auto drag = [&](ImVec2 from, ImVec2 to) {
-        w.frame(s, ctx, mouse(from, false));
-        w.frame(s, ctx, mouse(from, true));
-        for (int i = 1; i <= 4; ++i) {
-            const float u = i / 4.0f;
-            const ImVec2 p(from.x + u * (to.x - from.x), from.y + u * (to.y - from.y));
-            w.frame(s, ctx, mouse(p, true));
-        }
-        w.frame(s, ctx, mouse(to, false));
-    };
-    auto key = [&](int glfw_key, bool ctrl = false) {
-        w.frame(s, ctx, [=](ImGuiIO& io) {
-            io.MousePos = ImVec2(5, 280);
-            io.KeysDown[glfw_key] = true;
-            io.KeyCtrl = ctrl;
-        });
-        w.frame(s, ctx, [](ImGuiIO& io) { io.MousePos = ImVec2(5, 280); });
-    };
+    Hands h{w, s, ctx};
+    auto at = [&](int lane, double frame) { return h.at(lane, frame); };
 
     // A click selects; Shift+click adds.
-    click(at(0, 2));
+    h.click(at(0, 2));
     REQUIRE(s.selected.size() == 1);
     CHECK(s.selected[0] == KeyRef{0, 2});
-    click(at(1, 5), true);
+    h.click(at(1, 5), true);
     CHECK(s.selected.size() == 2);
 
     // A drag of the selection by 3 frames: both keys move, one undo entry.
-    drag(at(1, 5), at(1, 8));
+    h.drag(at(1, 5), at(1, 8));
     CHECK(frames_of(t.focus) == std::vector<int>{5, 10});
     CHECK(frames_of(t.aperture) == std::vector<int>{8});
     CHECK(ctx.doc.undo_label() == "Move 2 keys");
@@ -157,36 +164,31 @@ TEST_CASE("key lanes: select, drag, delete, copy and paste with mouse and keys")
     REQUIRE(ctx.doc.redo());
 
     // Dragged past the clip's end: clamped (the last selected key lands on the last frame).
-    drag(at(1, 8), at(1, 40));
+    h.drag(at(1, 8), at(1, 40));
     CHECK(frames_of(t.aperture) == std::vector<int>{19});
     CHECK(frames_of(t.focus) == std::vector<int>{10, 16});
 
     // A click where there is no key moves the playhead and clears the selection.
-    click(at(2, 12));
+    h.click(at(2, 12));
     CHECK(ctx.frame == 12);
     CHECK(s.selected.empty());
 
     // Copy two keys, paste at the playhead (their spacing kept), delete one.
-    click(at(0, 10));
-    click(at(0, 16), true);
-    key(GLFW_KEY_C, true);
+    h.click(at(0, 10));
+    h.click(at(0, 16), true);
+    h.key(GLFW_KEY_C, true);
     ctx.set_frame(1);
-    key(GLFW_KEY_V, true);
+    h.key(GLFW_KEY_V, true);
     CHECK(frames_of(t.focus) == std::vector<int>{1, 7, 10, 16});
     CHECK(ctx.doc.undo_label() == "Paste 2 keys");
     CHECK(s.selected.size() == 2);  // the pasted keys
-    click(at(0, 7));
-    key(GLFW_KEY_DELETE);
+    h.click(at(0, 7));
+    h.key(GLFW_KEY_DELETE);
     CHECK(frames_of(t.focus) == std::vector<int>{1, 10, 16});
     CHECK(ctx.doc.undo_label() == "Delete key");
 
     // Right-click a key: its menu opens for it.
-    w.frame(s, ctx, [&](ImGuiIO& io) { io.MousePos = at(0, 16); });
-    w.frame(s, ctx, [&](ImGuiIO& io) {
-        io.MousePos = at(0, 16);
-        io.MouseDown[1] = true;
-    });
-    w.frame(s, ctx, [&](ImGuiIO& io) { io.MousePos = at(0, 16); });
+    h.click(at(0, 16), false, 1);
     CHECK(s.menu_key == KeyRef{0, 16});
     CHECK(ImGui::IsPopupOpen("", ImGuiPopupFlags_AnyPopupId));
 }

@@ -314,7 +314,7 @@ void Studio::draw_autosave_and_error() {
     if (m_ctx.doc.is_open() && m_ctx.doc.has_newer_autosave()) ImGui::OpenPopup("Restore autosave");
     if (ImGui::BeginPopupModal("Restore autosave", nullptr, ImGuiWindowFlags_AlwaysAutoResize)) {
         ImGui::TextUnformatted(
-            "This project has autosaved changes newer than its last save\n"
+            "This project has autosaved changes that differ from its last save\n"
             "(the studio was closed without saving). Restore them?");
         if (ImGui::Button("Restore")) {
             m_ctx.guarded([&] { m_ctx.doc.restore_autosave(); });

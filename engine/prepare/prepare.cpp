@@ -52,7 +52,8 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
     const int n = res.frames, w = res.width, h = res.height;
     const std::string nf = std::to_string(n);
 
-    // 1. Flow.
+    // 1. Flow. (The steps' shares, for progress, are the sample clip's timings.)
+    log.stage("optical flow", 0.0, 0.45);
     auto t0 = std::chrono::steady_clock::now();
     res.flow = compute_clip_flow(frames, opts.flow);
     if (n > 1) {
@@ -64,6 +65,7 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
     }
 
     // 2. Camera motion.
+    log.stage("camera motion", 0.45, 0.5);
     t0 = std::chrono::steady_clock::now();
     res.motion = estimate_camera_motion(frames, &res.flow, opts.motion, log);
     {
@@ -82,6 +84,7 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
                  fmt("%.2f", opts.motion.static_max_px) + " px)");
 
     // 3. Masks.
+    log.stage("subject masks", 0.5, 0.9);
     t0 = std::chrono::steady_clock::now();
     if (!opts.mask_path.empty()) {
         res.masks = load_masks(opts.mask_path, n, w, h);
@@ -112,6 +115,7 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
     }
 
     // 4. Circle of confusion.
+    log.stage("circle of confusion", 0.9, 1.0);
     res.decisions.frame_sharp.assign(n, 0);
     if (opts.estimate_coc) {
         t0 = std::chrono::steady_clock::now();

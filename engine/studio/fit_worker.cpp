@@ -2,12 +2,21 @@
 
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cstdio>
 
 #include "io/tensor_image.h"
 #include "util/error.h"
 
 namespace refocus {
+
+namespace {
+double now_s() {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch())
+        .count();
+}
+}  // namespace
 
 const char* state_name(FitWorker::State s) {
     switch (s) {
@@ -75,15 +84,60 @@ std::optional<std::string> FitWorker::take_result() {
 
 FitWorker::Status FitWorker::status(bool full) const {
     std::lock_guard<std::mutex> lk(m_mutex);
-    if (full) return m_status;
     Status s;
-    s.state = m_status.state;
-    s.snap = m_status.snap;
-    s.error = m_status.error;
-    s.busy = m_status.busy;
-    s.busy_what = m_status.busy_what;
-    s.job_progress = m_status.job_progress;
+    if (full) {
+        s = m_status;
+    } else {
+        s.state = m_status.state;
+        s.snap = m_status.snap;
+        s.error = m_status.error;
+        s.busy = m_status.busy;
+        s.busy_what = m_status.busy_what;
+        s.job_progress = m_status.job_progress;
+        s.prep.stage = m_status.prep.stage;
+        s.prep_s = m_status.prep_s;
+    }
+    if (s.state == State::Preparing && !s.prep.stage.empty()) {
+        // The steps' shares are rough: once 15% is done, the time it took gives the
+        // total; the bar goes on with the clock within a step, never past its end nor back.
+        auto& p = s.prep;
+        const double now = now_s();
+        p.elapsed_s = now - m_prep_t0;
+        p.progress = m_step_begin;
+        if (m_prep_total_s > 0) {
+            const double step_s = (m_step_end - m_step_begin) * m_prep_total_s;
+            const double in_step = now - m_step_t0;
+            if (step_s > 0)
+                p.progress += (m_step_end - m_step_begin) * std::min(1.0, in_step / step_s);
+            p.eta_s = std::max(0.0, step_s - in_step) + (1.0 - m_step_end) * m_prep_total_s;
+        }
+        p.progress = m_prep_shown = std::max(p.progress, m_prep_shown);
+    }
     return s;
+}
+
+void FitWorker::begin_prep() {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_prep_t0 = m_step_t0 = now_s();
+    m_step_begin = m_step_end = m_prep_shown = 0.0;
+    m_prep_total_s = -1.0;
+    m_status.prep = Status::Preparation{};
+    m_status.prep.stage = "starting";
+}
+
+void FitWorker::prep_stage(const std::string& name, double begin, double end) {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_status.prep.stage = name;
+    m_step_t0 = now_s();
+    m_step_begin = std::clamp(begin, 0.0, 1.0);
+    m_step_end = std::clamp(end, m_step_begin, 1.0);
+    // The first steps are short and their shares the roughest: no estimate from them.
+    if (m_step_begin >= 0.15) m_prep_total_s = (m_step_t0 - m_prep_t0) / m_step_begin;
+}
+
+double FitWorker::prep_elapsed() const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    return now_s() - m_prep_t0;
 }
 
 bool FitWorker::has_engine() const {
@@ -146,6 +200,7 @@ void FitWorker::run_job(const std::string& what, const Job& job) {
 void FitWorker::open(const Project& project) {
     stop();
     set_state(State::Preparing);  // at once, so that the UI and scripts see the pending work
+    begin_prep();
     post("open", [this, project](FitEngine*, const Project&) {
         m_engine.reset();
         {
@@ -166,6 +221,8 @@ void FitWorker::open(const Project& project) {
         }
         try {
             PrepareLog log([this](const std::string& l) { add_log(l); });
+            log.set_stage_sink(
+                [this](const std::string& n, double b, double e) { prep_stage(n, b, e); });
             m_engine = open_fitted(project, log);
             std::lock_guard<std::mutex> lk(m_mutex);
             m_status.snap = m_engine->snapshot();
@@ -191,6 +248,7 @@ void FitWorker::close() {
 
 void FitWorker::start(const FitSettings& settings, bool resume) {
     set_state(State::Preparing);
+    begin_prep();  // the budget counts from the click
     post("start fit", [this, settings, resume](FitEngine*, const Project&) {
         if (!m_project) throw Error("no project is open");
         const fs::path dir = fit_dir(*m_project);
@@ -211,7 +269,20 @@ void FitWorker::start(const FitSettings& settings, bool resume) {
             data = std::make_shared<FitData>(m_engine->data());
         } else {
             PrepareLog log([this](const std::string& l) { add_log(l); });
+            log.set_stage_sink(
+                [this](const std::string& n, double b, double e) { prep_stage(n, b, e); });
             data = build_fit_data(*m_project, s.setup, log);
+        }
+        prep_stage("building the model", 0.92, 1.0);
+        // The time budget holds the preparation: the fit gets what is left of it (a tenth at
+        // least, so that a preparation longer than the budget still leaves a fit).
+        const double prep_s = prep_elapsed(), typed = s.fit.minutes;
+        if (typed > 0) {
+            s.fit.minutes = std::max(typed - prep_s / 60.0, 0.1 * typed);
+            char line[128];
+            std::snprintf(line, sizeof line, "preparation took %.0f s of the %.1f-minute budget",
+                          prep_s, typed);
+            add_log(line);
         }
         std::unique_ptr<FitEngine> engine;
         if (can_resume) {
@@ -236,6 +307,7 @@ void FitWorker::start(const FitSettings& settings, bool resume) {
         m_fitting = true;
         m_status.state = State::Fitting;
         m_status.history.clear();
+        m_status.prep_s = prep_s;
     });
 }
 

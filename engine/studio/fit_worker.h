@@ -33,6 +33,15 @@ class FitWorker {
         bool busy = false;  // a job is running (prepare, render, export)
         std::string busy_what;
         double job_progress = 0.0;  // 0..1 of the running job when it reports one
+        // While Preparing: the step the preparation is at (engine/prepare/log.h stages), how
+        // long it has run and an estimate from the steps' shares; the last one's duration.
+        struct Preparation {
+            std::string stage;  // empty until the first step is reported
+            double elapsed_s = 0.0;
+            double eta_s = -1.0;    // -1 while unknown
+            double progress = 0.0;  // 0..1
+        } prep;
+        double prep_s = 0.0;  // the last fit's preparation, counted in its time budget
     };
 
     FitWorker();
@@ -99,6 +108,10 @@ class FitWorker {
     void fit_step();
     void end_fit(const std::string& why);
     std::optional<ViewFrame> render_view_frame(int t);
+    // Preparation progress, reported from the worker thread through PrepareLog's stage sink.
+    void begin_prep();
+    void prep_stage(const std::string& name, double begin, double end);
+    double prep_elapsed() const;
 
     std::thread m_thread;
     mutable std::mutex m_mutex;  // guards everything below except the engine
@@ -123,6 +136,12 @@ class FitWorker {
     std::optional<std::string> m_result;
     std::shared_ptr<const DepthModel> m_depth;
     int64_t m_depth_step = -1;
+
+    // Guarded by m_mutex: when the preparation and its current step began (steady clock, s),
+    // the step's share of the work, the estimated total, the progress last shown.
+    double m_prep_t0 = 0.0, m_step_t0 = 0.0, m_step_begin = 0.0, m_step_end = 0.0;
+    double m_prep_total_s = -1.0;
+    mutable double m_prep_shown = 0.0;
 };
 
 const char* state_name(FitWorker::State s);
