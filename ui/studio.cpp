@@ -32,6 +32,7 @@ Studio::Studio(GLFWwindow* window, GLFWwindow* offscreen, const StudioOptions& o
 }
 
 Studio::~Studio() {
+    if (m_autosave.valid()) m_autosave.wait();
     if (m_opts.remember_layout) {
         glfwGetWindowSize(m_window, &m_ctx.layout.window_w, &m_ctx.layout.window_h);
         save_layout(m_ctx.layout);
@@ -346,10 +347,23 @@ void Studio::frame() {
     draw_status_line();
     drag_splitters(m_ctx.layout);
     draw_modals();
-    if (m_ctx.doc.is_open())
-        m_ctx.guarded([&] {
-            if (m_ctx.doc.autosave_if_due(glfwGetTime())) m_ctx.info = "autosaved";
-        });
+    autosave();
+}
+
+// The autosave's files are written on a thread of their own (an edit layer of a 4K atlas is
+// tens of MB); the next one waits until the last one is written.
+void Studio::autosave() {
+    if (m_autosave.valid()) {
+        if (m_autosave.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
+        m_ctx.guarded([&] { m_autosave.get(); });  // a failed write goes to the error dialog
+    }
+    if (!m_ctx.doc.is_open()) return;
+    m_ctx.guarded([&] {
+        if (auto job = m_ctx.doc.take_autosave(glfwGetTime())) {
+            m_autosave = std::async(std::launch::async, std::move(job));
+            m_ctx.info = "autosaved";
+        }
+    });
 }
 
 // ---- the window ----

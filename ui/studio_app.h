@@ -4,6 +4,7 @@
 // user's click does. Each panel's state lives in its own struct beside its drawing code.
 #include <nlohmann/json.hpp>
 
+#include <future>
 #include <string>
 #include <vector>
 
@@ -108,6 +109,7 @@ class Studio {
     void handle_keys();
     void handle_transport_keys();
     void draw_status_line();
+    void autosave();
     void step_to_key(int direction);  // the playhead to the previous / next keyframe
     void poll_results();              // export outcomes, ingested clips, Save As copies
     void after_open();
@@ -123,6 +125,7 @@ class Studio {
     AtlasPanel m_atlas;
     DialogState m_dialogs;
     bool m_quit = false;
+    std::future<void> m_autosave;  // the autosave being written
 };
 
 }  // namespace refocus

@@ -3,8 +3,11 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cstdlib>
+#include <memory>
 
+#include "io/image_file.h"
 #include "util/error.h"
 #include "util/fs.h"
 #include "util/json_file.h"
@@ -136,16 +139,42 @@ void StudioDoc::mark_dirty() {
 }
 
 bool StudioDoc::autosave_if_due(double now_s, double interval_s) {
-    if (!m_project || m_autosaved) return false;
+    auto job = take_autosave(now_s, interval_s);
+    if (!job) return false;
+    job();
+    return true;
+}
+
+std::function<void()> StudioDoc::take_autosave(double now_s, double interval_s) {
+    if (!m_project || m_autosaved) return {};
     if (m_changed_at == 0.0) m_changed_at = now_s;
-    if (now_s - m_changed_at < interval_s) return false;
+    if (now_s - m_changed_at < interval_s) return {};
     Project copy = *m_project;
     copy.dir = autosave_dir(m_project->dir);
-    std::error_code ec;
-    fs::create_directories(copy.dir, ec);
-    write_work(copy);
+    copy.sections["focus"] = m_focus.to_json();
+    std::array<std::shared_ptr<const Image>, 2> layers;
+    for (int i = 0; i < 2; ++i)
+        if (m_edits.layer(i).has_edits())
+            layers[i] = std::make_shared<const Image>(m_edits.layer(i).edit());
     m_autosaved = true;
-    return true;
+    // As write_work does, from the snapshot: the edit layers, then project.json's sections.
+    return [copy, layers]() mutable {
+        std::error_code ec;
+        fs::create_directories(copy.dir, ec);
+        nlohmann::json sec = nlohmann::json::object();
+        for (int i = 0; i < 2; ++i) {
+            const fs::path f = ProjectEdits::file_of(copy, i);
+            if (layers[i]) {
+                fs::create_directories(f.parent_path());
+                write_image_file(f.string(), *layers[i], PixelFormat::ExrFloat);
+                sec[i == 0 ? "bg" : "fg"] = f.lexically_relative(copy.dir).string();
+            } else {
+                fs::remove(f, ec);
+            }
+        }
+        copy.sections["edits"] = sec;
+        copy.save_merged({"focus", "edits"});
+    };
 }
 
 namespace {

@@ -48,6 +48,10 @@ class StudioDoc {
     // Writes .autosave/ when the document changed since the last save or autosave and
     // `interval_s` passed since the change. Returns true when it wrote.
     bool autosave_if_due(double now_s, double interval_s = 60.0);
+    // The same in two halves, so that the writing runs off the UI thread: when an autosave is
+    // due, takes a snapshot of the work (focus keys, edit layers) and returns the function that
+    // writes it (it touches no document state); else returns an empty function.
+    std::function<void()> take_autosave(double now_s, double interval_s = 60.0);
     // Found when the project was opened: an autosave whose work (focus keys, edits) differs
     // from the saved work, whatever the file times (a running fit rewrites project.json).
     bool has_newer_autosave() const;
