@@ -6,6 +6,7 @@
 
 #include "args.h"
 #include "commands.h"
+#include "progress.h"
 #include "edit/atlas_edit.h"
 #include "session/fit_session.h"
 #include "util/error.h"
@@ -17,14 +18,6 @@ namespace refocus {
 namespace {
 
 volatile std::sig_atomic_t g_interrupted = 0;
-
-std::string clock_text(double s) {
-    if (s < 0) return "--:--";
-    char b[32];
-    int m = static_cast<int>(s) / 60, sec = static_cast<int>(s) % 60;
-    std::snprintf(b, sizeof b, "%d:%02d", m, sec);
-    return b;
-}
 
 // A progress bar on a terminal, plain lines (every ~10 s) when not.
 class Progress {
@@ -105,7 +98,11 @@ int cmd_fit(int argc, char** argv) {
     s.setup.force_prepare = a.has("reprepare");
 
     PrepareLog log([](const std::string& line) { std::fprintf(stderr, "  %s\n", line.c_str()); });
+    StageProgress prep("prepare");
+    log.set_stage_sink(
+        [&](const std::string& name, double begin, double) { prep.update(begin, name, true); });
     auto data = build_fit_data(project, s.setup, log);
+    prep.done("ready");
     FitEngine engine(data, s.fit);
     for (const auto& line : engine.model_notes()) log.info(line);
     const fs::path dir = fit_dir(project);
@@ -185,7 +182,14 @@ int cmd_export(int argc, char** argv) {
         eo.edits = &edits;
         eo.first = a.get_int("first", 0);
         eo.last = a.get_int("last", -1);
+        StageProgress bar(std::string("export ") + export_pass_name(p));
+        eo.progress = [&](int done, int total) {
+            bar.update(total > 0 ? double(done) / total : 0.0,
+                       "frame " + std::to_string(done) + "/" + std::to_string(total));
+            return true;
+        };
         auto files = export_pass(*engine, p, format, target, eo);
+        bar.done(std::to_string(files.size()) + " file(s)");
         std::printf("%s: %zu file(s) in %s\n", export_pass_name(p), files.size(), target.c_str());
     }
     return 0;

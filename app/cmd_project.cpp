@@ -6,6 +6,7 @@
 
 #include "args.h"
 #include "commands.h"
+#include "progress.h"
 #include "io/clip.h"
 #include "project/project.h"
 #include "util/error.h"
@@ -17,15 +18,14 @@ namespace {
 
 volatile std::sig_atomic_t g_interrupted = 0;
 
-void print_progress(int i, int n) {
+void print_progress(StageProgress& p, int i, int n) {
     // Thrown from here, the ingest removes its temporary folder: no partial project.
     if (g_interrupted) throw Error("interrupted: no project was created");
-    if (isatty(fileno(stderr))) {
-        std::fprintf(stderr, "\r  ingest %d/%d", i, n);
-        if (i == n) std::fprintf(stderr, "\n");
-    } else if (i == n || i % 50 == 0) {
-        std::fprintf(stderr, "ingest %d/%d\n", i, n);
-    }
+    const std::string frames = "frame " + std::to_string(i) + "/" + std::to_string(n);
+    if (i == n)
+        p.done(frames);
+    else
+        p.update(n > 0 ? double(i) / n : 0.0, frames);
 }
 
 ClipReadOptions read_options(const Args& a) {
@@ -51,7 +51,9 @@ int cmd_new(int argc, char** argv) {
     const std::string clip = a.positional()[0];
     std::signal(SIGINT, [](int) { g_interrupted = 1; });
     std::signal(SIGTERM, [](int) { g_interrupted = 1; });
-    Project p = create_project(clip, a.get("out"), read_options(a), print_progress);
+    StageProgress progress("ingest");
+    Project p = create_project(clip, a.get("out"), read_options(a),
+                               [&](int i, int n) { print_progress(progress, i, n); });
     std::printf("created project %s: %dx%d, %d frames at %.3f fps from %s\n",
                 p.project_file().string().c_str(), p.width, p.height, p.frames, p.fps,
                 clip.c_str());

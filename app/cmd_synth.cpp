@@ -7,6 +7,7 @@
 
 #include "args.h"
 #include "commands.h"
+#include "progress.h"
 #include "io/image_file.h"
 #include "synth/synth.h"
 #include "util/error.h"
@@ -75,11 +76,17 @@ int cmd_synth(int argc, char** argv) {
         throw Error(file_error(out, "exists and is not a folder"));
     const fs::path tmp = make_temp_dir_beside(fs::absolute(out).lexically_normal());
     std::vector<std::string> files;
+    StageProgress progress("synth " + scene);
     try {
         files = write_synth_clip(opts, tmp.string(), [&](int t) {
             if (g_interrupted) throw Error("interrupted: " + out + " was left as it was");
-            if (!quiet)
-                std::fprintf(stderr, "\rsynth %s: frame %d/%d", scene.c_str(), t + 1, opts.frames);
+            if (quiet) return;
+            const std::string f =
+                "frame " + std::to_string(t + 1) + "/" + std::to_string(opts.frames);
+            if (t + 1 == opts.frames)
+                progress.done(f);
+            else
+                progress.update(double(t + 1) / opts.frames, f);
         });
         publish_dir(tmp, out, {"clip.json"});
     } catch (const Error& e) {

@@ -80,6 +80,8 @@ int main(int argc, char** argv) {
         setenv("OMP_WAIT_POLICY", "PASSIVE", 1);
         execv("/proc/self/exe", argv);  // on failure, carry on as we are
     }
+    // Lines reach a log file as they are written, not when the command exits.
+    std::setvbuf(stdout, nullptr, _IOLBF, 0);
     if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h") ||
         !std::strcmp(argv[1], "help")) {
         print_help();
