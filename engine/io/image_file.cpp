@@ -123,7 +123,7 @@ const char* extension_of(PixelFormat f) {
 }
 
 void write_image_file(const std::string& path, const Image& img, PixelFormat format,
-                      bool srgb_encode) {
+                      bool srgb_encode, const char* exr_compression) {
     if (img.empty()) throw Error(file_error(path, "refusing to write an empty image"));
     const fs::path target(path);
     if (!target.parent_path().empty() && !fs::is_directory(target.parent_path()))
@@ -158,7 +158,7 @@ void write_image_file(const std::string& path, const Image& img, PixelFormat for
         }
         spec.attribute("oiio:ColorSpace", srgb_encode ? "sRGB" : "linear");
     } else {
-        spec.attribute("compression", "zip");
+        spec.attribute("compression", exr_compression);
         spec.attribute("oiio:ColorSpace", "linear");
     }
     if (format == PixelFormat::Tiff16) spec.attribute("compression", "zip");

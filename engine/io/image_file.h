@@ -30,8 +30,10 @@ PixelFormat parse_pixel_format(const std::string& name);
 const char* extension_of(PixelFormat f);
 
 // Writes atomically (complete or absent). `srgb_encode` = false writes data passes (alpha,
-// masks) with their values as they are, scaled to the integer range.
+// masks) with their values as they are, scaled to the integer range. `exr_compression`: an
+// OpenEXR lossless codec; the frame cache uses "piz" (no zlib: the ingest's largest cost with
+// "zip", and smaller files on camera frames).
 void write_image_file(const std::string& path, const Image& img, PixelFormat format,
-                      bool srgb_encode = true);
+                      bool srgb_encode = true, const char* exr_compression = "zip");
 
 }  // namespace refocus

@@ -2,8 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <condition_variable>
+#include <deque>
+#include <exception>
+#include <functional>
 #include <limits>
 #include <mutex>
+#include <thread>
 
 #include "io/image_file.h"
 #include "util/error.h"
@@ -234,6 +239,94 @@ bool is_project_path(const std::string& path) {
     return p.filename() == Project::kFileName;
 }
 
+namespace {
+
+// Decodes on the calling thread and encodes the cache files on writer threads (an EXR frame
+// takes longer to compress than to decode): at 1080p the ingest runs at the decoder's pace.
+// The queue is bounded, so memory holds a few frames whatever the clip's length. The first
+// error (decode or write) stops the ingest and is rethrown here. `progress(done, total)` is
+// called on the calling thread.
+void write_frames_threaded(ClipReader& reader, int frames,
+                           const std::function<void(int, const Image&)>& write,
+                           const std::function<void(int, int)>& progress) {
+    const int writers = std::clamp(static_cast<int>(std::thread::hardware_concurrency()), 1, 4);
+    const size_t max_queued = static_cast<size_t>(writers) + 1;
+    std::mutex m;
+    std::condition_variable cv;
+    std::deque<std::pair<int, Image>> queue;
+    std::exception_ptr error;
+    int written = 0;
+    bool closed = false;
+    auto worker = [&] {
+        while (true) {
+            std::pair<int, Image> job;
+            {
+                std::unique_lock<std::mutex> lk(m);
+                cv.wait(lk, [&] { return !queue.empty() || closed || error; });
+                if (error || queue.empty()) return;
+                job = std::move(queue.front());
+                queue.pop_front();
+            }
+            cv.notify_all();
+            try {
+                write(job.first, job.second);
+            } catch (...) {
+                std::lock_guard<std::mutex> lk(m);
+                if (!error) error = std::current_exception();
+            }
+            {
+                std::lock_guard<std::mutex> lk(m);
+                ++written;
+            }
+            cv.notify_all();
+        }
+    };
+    std::vector<std::thread> pool;
+    for (int k = 0; k < writers; ++k) pool.emplace_back(worker);
+    auto finish = [&] {
+        {
+            std::lock_guard<std::mutex> lk(m);
+            closed = true;
+        }
+        cv.notify_all();
+        for (auto& t : pool) t.join();
+    };
+    int reported = 0;
+    auto report = [&](bool all) {
+        std::unique_lock<std::mutex> lk(m);
+        if (all) cv.wait(lk, [&] { return written == frames || error; });
+        const int done = written;
+        lk.unlock();
+        if (progress)
+            for (; reported < done;) progress(++reported, frames);
+    };
+    try {
+        for (int i = 0; i < frames; ++i) {
+            Image f = reader.read(i);
+            {
+                std::unique_lock<std::mutex> lk(m);
+                cv.wait(lk, [&] { return queue.size() < max_queued || error; });
+                if (error) break;
+                queue.emplace_back(i, std::move(f));
+            }
+            cv.notify_all();
+            report(false);  // may throw (an interrupt): the writers are joined below
+        }
+        report(true);
+    } catch (...) {
+        {
+            std::lock_guard<std::mutex> lk(m);
+            if (!error) error = std::current_exception();
+        }
+        finish();
+        std::rethrow_exception(error);
+    }
+    finish();
+    if (error) std::rethrow_exception(error);
+}
+
+}  // namespace
+
 Project create_project(const std::string& clip, const fs::path& dir, const ClipReadOptions& opts,
                        const std::function<void(int, int)>& progress) {
     if (fs::exists(dir / Project::kFileName))
@@ -277,18 +370,19 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
         // Float sources keep float precision; 8/16-bit sources fit in half exactly enough.
         const PixelFormat cache_format =
             info.source_format == "float" ? PixelFormat::ExrFloat : PixelFormat::ExrHalf;
-        for (int i = 0; i < info.frames; ++i) {
-            Image f = reader->read(i);
-            try {
-                write_image_file(staged.frame_path(i).string(), f, cache_format, false);
-            } catch (const Error& e) {
-                std::string m = e.what();
-                const std::string from = staged.frame_path(i).string();
-                if (m.rfind(from, 0) == 0) m = p.frame_path(i).string() + m.substr(from.size());
-                throw Error(m);
-            }
-            if (progress) progress(i + 1, info.frames);
-        }
+        write_frames_threaded(
+            *reader, info.frames,
+            [&](int i, const Image& f) {
+                try {
+                    write_image_file(staged.frame_path(i).string(), f, cache_format, false, "piz");
+                } catch (const Error& e) {
+                    std::string m = e.what();
+                    const std::string from = staged.frame_path(i).string();
+                    if (m.rfind(from, 0) == 0) m = p.frame_path(i).string() + m.substr(from.size());
+                    throw Error(m);
+                }
+            },
+            progress);
         staged.save();
         publish_dir(tmp, dir, {Project::kFileName});
     } catch (...) {
