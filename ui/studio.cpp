@@ -47,7 +47,8 @@ void Studio::after_open() {
     m_ctx.worker->open(m_ctx.doc.project());
     m_atlas.set_edits(&m_ctx.doc.edits());
     m_ctx.frame = std::clamp(m_ctx.frame, 0, m_ctx.source->frames() - 1);
-    m_ctx.renderer->open(m_ctx.doc.project().dir.string(), m_ctx.source->frames());
+    m_ctx.renderer->open(m_ctx.doc.project().dir.string(), m_ctx.source->frames(),
+                         m_ctx.source->width());
     m_viewer.a.shown = m_viewer.b.shown = nullptr;
     m_ctx.view.reset();
     m_ctx.depth.reset();
@@ -257,8 +258,9 @@ void Studio::draw_status_line() {
     if (m_ctx.source) {
         ImGui::SameLine();
         const int mode = wanted_modes(m_viewer)[0];
-        ImGui::TextDisabled("| %s | cached %d/%d | preview: %s", m_viewer.mode->label,
+        ImGui::TextDisabled("| %s | cached %d/%d | proxy %s | preview: %s", m_viewer.mode->label,
                             m_ctx.renderer->cached_frames(mode), m_ctx.source->frames(),
+                            m_ctx.renderer->proxy_name().c_str(),
                             m_ctx.renderer->backend_name().c_str());
     }
     if (!m_ctx.info.empty()) {

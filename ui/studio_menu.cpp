@@ -109,6 +109,14 @@ void Studio::draw_menu() {
                 if (ImGui::MenuItem(label, nullptr, now == b)) m_ctx.renderer->set_backend(b);
             ImGui::EndMenu();
         }
+        if (ImGui::BeginMenu("Proxy")) {
+            // The viewer's picture size; exports always render at full size.
+            const int now = m_ctx.renderer->proxy();
+            for (auto [p, label] : {std::pair{0, "Auto (at most 1280 px wide)"},
+                                    std::pair{1, "Full"}, std::pair{2, "1/2"}, std::pair{4, "1/4"}})
+                if (ImGui::MenuItem(label, nullptr, now == p)) m_ctx.renderer->set_proxy(p);
+            ImGui::EndMenu();
+        }
         ImGui::EndMenu();
     }
     const auto st = m_ctx.worker->status();

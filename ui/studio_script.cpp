@@ -212,6 +212,13 @@ std::optional<bool> StudioScript::view_step(Studio& st, const json& step, bool f
                                                         : ViewRenderer::Backend::Auto);
         return m_settle > 2;
     }
+    if (step.contains("proxy")) {
+        const std::string p = step["proxy"];
+        const int d = p == "auto" ? 0 : p == "full" ? 1 : p == "half" ? 2 : p == "quarter" ? 4 : -1;
+        if (d < 0) throw Error("proxy is auto, full, half or quarter, not '" + p + "'");
+        if (first) st.m_ctx.renderer->set_proxy(d);
+        return st.view_current() || !st.m_viewer.mode->needs_fit;
+    }
     if (step.contains("window_size")) {
         // As a user drags the window's corner; the panels follow the new size.
         if (first)

@@ -78,10 +78,12 @@ ViewRenderer::~ViewRenderer() {
     m_thread.join();
 }
 
-void ViewRenderer::open(const std::string& dir, int frames) {
+void ViewRenderer::open(const std::string& dir, int frames, int width) {
     std::lock_guard<std::mutex> lk(m_mutex);
     m_dir = dir;
     m_frames = frames;
+    m_width = width;
+    update_divisor();
     ++m_epoch;
     m_failed = false;
     m_layers.clear();
@@ -115,6 +117,30 @@ void ViewRenderer::set_backend(Backend b) {
     m_scene.generation += 1;  // every picture again, with the other renderer
     m_scene_ptr = std::make_shared<ViewScene>(m_scene);
     m_cv.notify_all();
+}
+
+void ViewRenderer::set_proxy(int proxy) {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_proxy = proxy;
+    update_divisor();
+    m_cv.notify_all();
+}
+
+// Auto keeps the pictures at most 1280 px wide: a 1080p clip previews at ½, a 4K one at ¼.
+void ViewRenderer::update_divisor() {
+    int d = m_proxy;
+    if (d <= 0) {
+        d = 1;
+        while (m_width / d > 1280 && d < 4) d *= 2;
+    }
+    if (d != m_divisor) m_full_ms.clear();
+    m_divisor = d;
+}
+
+std::string ViewRenderer::proxy_name() const {
+    std::lock_guard<std::mutex> lk(m_mutex);
+    const char* size = m_divisor == 1 ? "full" : m_divisor == 2 ? "1/2" : "1/4";
+    return m_proxy <= 0 ? std::string("auto (") + size + ")" : std::string(size);
 }
 
 std::string ViewRenderer::backend_name() const {
@@ -167,6 +193,7 @@ bool ViewRenderer::needs(int mode, int frame, bool full_only) const {
     const RenderedFrame& f = *it->second;
     const bool scene_free = !view_modes()[mode].needs_fit;
     if (!scene_free && f.generation != m_scene.generation) return true;
+    if (f.divisor != m_divisor) return full_only || f.divisor < m_divisor;
     return full_only && !f.full;
 }
 
@@ -177,12 +204,13 @@ bool ViewRenderer::next_work(Work& w) {
         if (needs(m, t0, false)) {
             auto it = m_full_ms.find(m);
             const bool slow = it != m_full_ms.end() && it->second > kProgressiveMs;
-            w = {m, t0, slow && view_modes()[m].needs_fit ? 0.5 : 1.0};
+            const double full = 1.0 / m_divisor;
+            w = {m, t0, slow && view_modes()[m].needs_fit ? full / 2 : full};
             return true;
         }
     for (int m : m_modes)
         if (needs(m, t0, true)) {
-            w = {m, t0, 1.0};
+            w = {m, t0, 1.0 / m_divisor};
             return true;
         }
     if (m_scene.fitted && !m_layers_tried.count({m_scene.maps_generation, t0}) &&
@@ -195,7 +223,7 @@ bool ViewRenderer::next_work(Work& w) {
     for (int d = 1; d < m_frames; ++d)
         for (int m : m_modes)
             if (needs(m, (t0 + d) % m_frames, true)) {
-                w = {m, (t0 + d) % m_frames, 1.0};
+                w = {m, (t0 + d) % m_frames, 1.0 / m_divisor};
                 return true;
             }
     return false;
@@ -303,15 +331,20 @@ void ViewRenderer::render(const Work& w) {
     std::shared_ptr<const FitWorker::ViewFrame> view;
     if (mode.needs_fit && scene->fitted) view = layers(w.frame, scene->maps_generation);
     std::shared_ptr<const FitWorker::ViewFrame> scaled = view;
-    if (w.scale < 1.0) {
+    int divisor = 1;
+    for (; w.scale * divisor < 0.99; divisor *= 2) {
         input = half(input);
-        if (view) scaled = std::make_shared<const FitWorker::ViewFrame>(half(*view));
+        if (scaled) scaled = std::make_shared<const FitWorker::ViewFrame>(half(*scaled));
     }
     auto f = std::make_shared<RenderedFrame>();
     f->mode = w.mode;
     f->frame = w.frame;
     f->generation = mode.needs_fit ? scene->generation : 0;
-    f->full = w.scale >= 1.0;
+    {
+        std::lock_guard<std::mutex> lk(m_mutex);
+        f->divisor = m_divisor;
+        f->full = divisor == m_divisor;
+    }
     f->view = view;
     Image img;
     try {
@@ -329,7 +362,7 @@ void ViewRenderer::render(const Work& w) {
     const double ms = now_ms() - t0;
     std::lock_guard<std::mutex> lk(m_mutex);
     if (epoch != m_epoch) return;  // another project opened meanwhile
-    if (f->full) m_full_ms[w.mode] = ms;
+    if (f->full && f->divisor == m_divisor) m_full_ms[w.mode] = ms;
     store(std::move(f));
 }
 

@@ -34,6 +34,7 @@ struct RenderedFrame {
     int mode = 0, frame = 0;
     uint64_t generation = 0;  // the scene's (0: a mode that does not depend on it)
     bool full = true;         // false: the progressive half-resolution pass
+    int divisor = 1;          // the proxy it was made at: 1 full size, 2 half, 4 quarter
     int width = 0, height = 0;
     std::vector<unsigned char> rgba;  // sRGB, RGBA8
     uint64_t hash = 0;                // of rgba: playback counts distinct pictures with it
@@ -50,8 +51,13 @@ class ViewRenderer {
     ViewRenderer(const ViewRenderer&) = delete;
     ViewRenderer& operator=(const ViewRenderer&) = delete;
 
-    // The project whose frames to show (its folder); drops the cache.
-    void open(const std::string& project_dir, int frames);
+    // The project whose frames to show (its folder, frame count and width); drops the cache.
+    void open(const std::string& project_dir, int frames, int width);
+    // Proxy size of the pictures: 0 auto (at most 1280 px wide), 1 full, 2 half, 4 quarter.
+    // Exports always render at full size.
+    void set_proxy(int proxy);
+    int proxy() const { return m_proxy; }
+    std::string proxy_name() const;
     void set_scene(const ViewScene& scene);
     // `modes`: indexes into view_modes(); `ahead`: render the frames after the playhead too.
     void set_wanted(const std::vector<int>& modes, int playhead, bool ahead);
@@ -78,6 +84,7 @@ class ViewRenderer {
     };
     void loop();
     bool next_work(Work& w);  // under m_mutex
+    void update_divisor();    // under m_mutex
     bool needs(int mode, int frame, bool full_only) const;
     void render(const Work& w);
     std::shared_ptr<const FitWorker::ViewFrame> layers(int frame, uint64_t maps_generation);
@@ -94,7 +101,9 @@ class ViewRenderer {
     std::condition_variable m_cv;
     bool m_quit = false, m_failed = false;
     std::string m_dir;
-    int m_frames = 0;
+    int m_frames = 0, m_width = 0;
+    std::atomic<int> m_proxy{0};
+    int m_divisor = 1;
     uint64_t m_epoch = 0;  // bumps with open(): work of an older project is dropped
     ViewScene m_scene;
     std::shared_ptr<const ViewScene> m_scene_ptr;
