@@ -127,23 +127,31 @@ void AtlasPanel::upload(int layer) {
 void AtlasPanel::draw_controls(AtlasEditor& ed) {
     ImGui::SetNextItemWidth(180);
     ImGui::ColorEdit3("colour", m_brush.color, ImGuiColorEditFlags_Float | ImGuiColorEditFlags_HDR);
+    item_tooltip("The brush colour, linear light (values above 1 paint highlights)");
     ImGui::SameLine();
     if (ImGui::Button(m_picking ? "Picking... (I)" : "Pick (I)")) m_picking = !m_picking;
+    item_tooltip("Eyedropper: the next click on the atlas takes its colour");
     ImGui::SetNextItemWidth(180);
     ImGui::SliderFloat("size", &m_brush.size, 1.0f, 256.0f, "%.0f px",
                        ImGuiSliderFlags_Logarithmic);
+    item_tooltip("Brush diameter in atlas pixels ([ and ] too)");
     ImGui::SameLine();
     ImGui::SetNextItemWidth(120);
     ImGui::SliderFloat("hardness", &m_brush.hardness, 0.0f, 1.0f, "%.2f");
+    item_tooltip("0: soft falloff from the centre, 1: a hard edge");
     ImGui::SameLine();
     ImGui::SetNextItemWidth(120);
     ImGui::SliderFloat("opacity", &m_brush.opacity, 0.0f, 1.0f, "%.2f");
+    item_tooltip("The most a stroke covers; strokes build up");
     int mode = m_brush.mode;
     ImGui::RadioButton("Paint", &mode, Brush::Paint);
+    item_tooltip("Paint the colour over the fitted atlas");
     ImGui::SameLine();
     ImGui::RadioButton("Erase", &mode, Brush::Erase);
+    item_tooltip("Remove edits: the fitted atlas shows again");
     ImGui::SameLine();
     ImGui::RadioButton("Clone", &mode, Brush::Clone);
+    item_tooltip("Copy the atlas from an offset source (Alt+click sets it)");
     m_brush.mode = Brush::Mode(mode);
     if (m_brush.mode == Brush::Clone) {
         ImGui::SameLine();
@@ -153,16 +161,20 @@ void AtlasPanel::draw_controls(AtlasEditor& ed) {
     ImGui::SameLine(0, 24);
     ImGui::BeginDisabled(!ed.can_undo());
     if (ImGui::Button("Undo")) ed.undo();
+    item_tooltip("Undo the last stroke or import (Ctrl+Z)");
     ImGui::EndDisabled();
     ImGui::SameLine();
     ImGui::BeginDisabled(!ed.can_redo());
     if (ImGui::Button("Redo")) ed.redo();
+    item_tooltip("Redo (Ctrl+Shift+Z)");
     ImGui::EndDisabled();
     ImGui::SameLine();
     ImGui::SetNextItemWidth(100);
     ImGui::SliderFloat("zoom", &m_zoom, 0.1f, 32.0f, "%.2fx", ImGuiSliderFlags_Logarithmic);
+    item_tooltip("Atlas zoom (mouse wheel); right or middle drag pans");
     ImGui::SameLine();
     if (ImGui::Button("Fit")) m_zoom = 1.0f, m_pan[0] = m_pan[1] = 0;
+    item_tooltip("Fit the atlas to the panel");
 
     draw_file_buttons();
     ImGui::Text("%dx%d  %s", ed.width(), ed.height(), ed.has_edits() ? "edited" : "no edits");

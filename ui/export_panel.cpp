@@ -19,15 +19,17 @@ namespace {
 struct PassInfo {
     const char* label;
     const char* name;  // export_pass name
+    const char* tip;
 };
-const PassInfo kPasses[] = {{"sharp plate", "sharp"},
-                            {"refocused video", "refocus"},
-                            {"atlases (edited)", "atlas"},
-                            {"alpha", "alpha"},
-                            {"radius (CoC)", "coc"},
-                            {"inverse depth", "depth"},
-                            {"UV maps", "uv"},
-                            {"reblur", "reblur"}};
+const PassInfo kPasses[] = {
+    {"sharp plate", "sharp", "The all-in-focus frames, with the atlas edits"},
+    {"refocused video", "refocus", "The frames through the keyed lens (Focus tab)"},
+    {"atlases (edited)", "atlas", "The background and foreground atlases with the paint"},
+    {"alpha", "alpha", "The foreground layer's matte per frame"},
+    {"radius (CoC)", "coc", "The blur radius the fit uses per pixel, px (EXR)"},
+    {"inverse depth", "depth", "The fitted inverse depth per pixel (EXR)"},
+    {"UV maps", "uv", "Where each pixel samples the atlases (EXR)"},
+    {"reblur", "reblur", "The model's re-blurred frames, to compare with the input"}};
 const char* kFormats[] = {"png", "tiff", "exr", "mp4"};
 
 struct ExportJob {
@@ -127,8 +129,12 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
     }
     const FitWorker::Status st = ctx.worker->status();
     ImGui::BeginDisabled(s.running);
-    for (int i = 0; i < 8; ++i) ImGui::Checkbox(kPasses[i].label, &s.pass[i]);
+    for (int i = 0; i < 8; ++i) {
+        ImGui::Checkbox(kPasses[i].label, &s.pass[i]);
+        item_tooltip(kPasses[i].tip);
+    }
     ImGui::Combo("format", &s.format, kFormats, 4);
+    item_tooltip("png / tiff (16-bit) / exr (half float) image sequences, or an mp4 video");
     ImGui::TextDisabled("radius, depth and UV are written as EXR; atlases as images");
     const int n = ctx.source ? ctx.source->frames() : 1;
     if (s.last < 0) s.last = n - 1;
@@ -167,6 +173,7 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
         req["what"] = what;
         ctx.guarded([&] { start_export(s, ctx, req); });
     }
+    item_tooltip("Write the checked passes for the frame range (runs on the worker)");
     ImGui::EndDisabled();
     if (s.running) {
         // Elapsed and a linear ETA from the fraction done, as the fit's bar shows them.
@@ -181,6 +188,7 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
                           int(el) % 60);
         ImGui::ProgressBar(static_cast<float>(p), ImVec2(-1, 0), label);
         if (ImGui::Button("Cancel")) ctx.worker->cancel_job();
+        item_tooltip("Stop the export; a sequence left incomplete is removed");
         ImGui::TextDisabled("files are complete or absent: a cancelled sequence is removed");
     }
     if (!s.result.empty()) ImGui::TextWrapped("%s", s.result.c_str());
