@@ -176,9 +176,10 @@ TEST_CASE("fit worker: fit on its thread, render between steps, stop keeps the w
     CHECK(FitEngine::has_checkpoint(fit_dir(p)));
 
     // Render requests are answered on the worker thread.
-    w.request_frame(3);
-    std::optional<FitWorker::ViewFrame> v;
-    REQUIRE(wait_for([&] { return (v = w.take_frame()).has_value(); }, 30));
+    auto pending = w.frame_async(3);
+    REQUIRE(pending.wait_for(std::chrono::seconds(30)) == std::future_status::ready);
+    std::optional<FitWorker::ViewFrame> v = pending.get();
+    REQUIRE(v.has_value());
     CHECK(v->t == 3);
     CHECK(v->maps.sharp.width == 64);
     CHECK(v->maps.uv_bg.channels == 2);

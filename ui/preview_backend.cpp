@@ -13,12 +13,7 @@ PreviewLayers layers_of(const FrameMaps& m, const EditAtlases& e, int threads) {
     if (e.bg && !m.uv_bg.empty())
         return composite_layers(*e.bg, m.uv_bg, two && e.fg ? *e.fg : Image(),
                                 two ? m.uv_fg : Image(), two ? m.alpha : Image(), threads);
-    PreviewLayers l;
-    l.composite = m.sharp;
-    l.background = m.bg.empty() ? m.sharp : m.bg;
-    l.foreground = two ? m.fg : Image(l.background.width, l.background.height, 3);
-    l.alpha = two ? m.alpha : Image(l.background.width, l.background.height, 1);
-    return l;
+    return preview_layers(m);
 }
 
 class CpuPreview : public PreviewBackend {

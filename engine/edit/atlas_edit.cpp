@@ -389,12 +389,16 @@ ProjectEdits ProjectEdits::load(const Project& p) {
 }
 
 void ProjectEdits::save(Project& p) const {
+    save_layers(p, bg.has_edits() ? &bg.edit() : nullptr, fg.has_edits() ? &fg.edit() : nullptr);
+}
+
+void ProjectEdits::save_layers(Project& p, const Image* bg_edit, const Image* fg_edit) {
     nlohmann::json sec = nlohmann::json::object();
     for (int i = 0; i < 2; ++i) {
         const fs::path f = file_of(p, i);
-        if (layer(i).has_edits()) {
+        if (const Image* e = i == 0 ? bg_edit : fg_edit) {
             fs::create_directories(f.parent_path());
-            layer(i).save_edit(f.string());
+            write_image_file(f.string(), *e, PixelFormat::ExrFloat);
             sec[kLayerName[i]] = f.lexically_relative(p.dir).string();
         } else {
             std::error_code ec;

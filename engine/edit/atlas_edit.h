@@ -133,6 +133,9 @@ struct ProjectEdits {
     // Writes the layers with edits (removes the files of those without) and updates
     // project.sections["edits"] and project.json, so that later saves of `project` keep it.
     void save(Project& project) const;
+    // The same from edit layers alone (RGBA, null: no edit), so that a snapshot can be written
+    // on another thread (the studio's autosave) while the editors go on.
+    static void save_layers(Project& project, const Image* bg_edit, const Image* fg_edit);
 };
 
 // Adds the edit deltas (AtlasEditor::delta, [1,3,Ha,Wa]; undefined = no edit) to a rendered

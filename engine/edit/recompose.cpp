@@ -49,14 +49,20 @@ Image render_refocused(const FrameMaps& m, const DepthModel& depth, int t, const
     if (m.uv_bg.empty())
         throw Error("refocus: frame " + std::to_string(t) +
                     " has no UV map (the perframe preset has no atlas)");
+    const bool two = !m.fg.empty();
+    return render_dof(preview_layers(m), depth.frame_depth(t, m.uv_bg, two ? m.uv_fg : Image()),
+                      lens, threads);
+}
+
+PreviewLayers preview_layers(const FrameMaps& m) {
     PreviewLayers layers;
     layers.composite = m.sharp;
-    layers.background = m.bg;
+    layers.background = m.bg.empty() ? m.sharp : m.bg;
     const bool two = !m.fg.empty();
-    layers.foreground = two ? m.fg : Image(m.bg.width, m.bg.height, 3);
-    layers.alpha = two ? m.alpha : Image(m.bg.width, m.bg.height, 1);
-    return render_dof(layers, depth.frame_depth(t, m.uv_bg, two ? m.uv_fg : Image()), lens,
-                      threads);
+    const int w = layers.background.width, h = layers.background.height;
+    layers.foreground = two ? m.fg : Image(w, h, 3);
+    layers.alpha = two ? m.alpha : Image(w, h, 1);
+    return layers;
 }
 
 }  // namespace refocus

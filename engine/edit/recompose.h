@@ -26,6 +26,8 @@ FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta,
 // The first frame of a rendered batch (e.g. after edit/atlas_edit.h apply_edits).
 FrameMaps frame_maps(const Layers& layers);
 
+// The frame's layers as the depth-of-field pass takes them (one layer: an empty foreground).
+PreviewLayers preview_layers(const FrameMaps& m);
 // render_dof of m's layers with depth.frame_depth(t, ...) and `lens`. Aperture 0 gives the sharp
 // composite α·F + (1 − α)·B.
 Image render_refocused(const FrameMaps& m, const DepthModel& depth, int t, const PreviewLens& lens,

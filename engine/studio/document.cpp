@@ -7,7 +7,6 @@
 #include <cstdlib>
 #include <memory>
 
-#include "io/image_file.h"
 #include "util/error.h"
 #include "util/fs.h"
 #include "util/json_file.h"
@@ -161,19 +160,8 @@ std::function<void()> StudioDoc::take_autosave(double now_s, double interval_s) 
     return [copy, layers]() mutable {
         std::error_code ec;
         fs::create_directories(copy.dir, ec);
-        nlohmann::json sec = nlohmann::json::object();
-        for (int i = 0; i < 2; ++i) {
-            const fs::path f = ProjectEdits::file_of(copy, i);
-            if (layers[i]) {
-                fs::create_directories(f.parent_path());
-                write_image_file(f.string(), *layers[i], PixelFormat::ExrFloat);
-                sec[i == 0 ? "bg" : "fg"] = f.lexically_relative(copy.dir).string();
-            } else {
-                fs::remove(f, ec);
-            }
-        }
-        copy.sections["edits"] = sec;
-        copy.save_merged({"focus", "edits"});
+        ProjectEdits::save_layers(copy, layers[0].get(), layers[1].get());  // and "edits"
+        copy.save_merged({"focus"});
     };
 }
 

@@ -365,12 +365,6 @@ void FitWorker::fit_step() {
     if (m_engine->done()) end_fit("budget used");
 }
 
-void FitWorker::request_frame(int t) {
-    std::lock_guard<std::mutex> lk(m_mutex);
-    m_frame_request = t;
-    m_cv.notify_all();
-}
-
 std::future<std::optional<FitWorker::ViewFrame>> FitWorker::frame_async(int t) {
     std::promise<std::optional<ViewFrame>> p;
     auto f = p.get_future();
@@ -398,13 +392,6 @@ std::optional<FitWorker::ViewFrame> FitWorker::render_view_frame(int t) {
         m_status.error = std::string("render frame: ") + e.what();
         return std::nullopt;
     }
-}
-
-std::optional<FitWorker::ViewFrame> FitWorker::take_frame() {
-    std::lock_guard<std::mutex> lk(m_mutex);
-    auto r = std::move(m_frame_result);
-    m_frame_result.reset();
-    return r;
 }
 
 void FitWorker::request_atlases() {
@@ -454,8 +441,8 @@ void FitWorker::loop() {
     while (true) {
         std::unique_lock<std::mutex> lk(m_mutex);
         m_cv.wait(lk, [&] {
-            return m_quit || !m_jobs.empty() || !m_frame_jobs.empty() || m_frame_request ||
-                   m_atlas_request || (m_fitting && m_status.state == State::Fitting);
+            return m_quit || !m_jobs.empty() || !m_frame_jobs.empty() || m_atlas_request ||
+                   (m_fitting && m_status.state == State::Fitting);
         });
         if (m_quit) break;
         if (!m_jobs.empty()) {
@@ -470,15 +457,6 @@ void FitWorker::loop() {
             m_frame_jobs.pop_front();
             lk.unlock();
             job.second.set_value(render_view_frame(job.first));
-            continue;
-        }
-        if (m_frame_request) {
-            const int t = *m_frame_request;
-            m_frame_request.reset();
-            lk.unlock();
-            auto v = render_view_frame(t);
-            std::lock_guard<std::mutex> l2(m_mutex);
-            if (v) m_frame_result = std::move(v);
             continue;
         }
         if (m_atlas_request) {

@@ -65,11 +65,8 @@ class FitWorker {
         Image radius;  // 1 channel, px: the radius the fit uses at this frame
         int64_t atlas_version = 0;
     };
-    void request_frame(int t);
-    std::optional<ViewFrame> take_frame();
-    // The same for a caller that waits off the UI thread (the viewer's renderer): frame t is
-    // rendered before the next fit step; the future holds nothing when no fit is open or the
-    // worker closes first.
+    // Frame t is rendered before the next fit step; the future holds nothing when no fit is open
+    // or the worker closes first. The viewer's renderer waits on it off the UI thread.
     std::future<std::optional<ViewFrame>> frame_async(int t);
     void request_atlases();
     struct Atlases {
@@ -128,9 +125,7 @@ class FitWorker {
     FitSettings m_settings;
     bool m_has_checkpoint = false;
 
-    std::optional<int> m_frame_request;
     std::deque<std::pair<int, std::promise<std::optional<ViewFrame>>>> m_frame_jobs;
-    std::optional<ViewFrame> m_frame_result;
     bool m_atlas_request = false;
     std::optional<Atlases> m_atlas_result;
     std::optional<std::string> m_result;
