@@ -162,6 +162,8 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
         o.preset = "fast";
         o.iters = 300;
         o.robust_c = c;
+        o.fallback_frames = 0;  // frame by frame here (the window has a test of its own)
+        o.keep_focus_px = 0;    // the clip has no blur: with it on, every frame is the shot
         FitEngine e(make(), o);
         while (!e.done()) e.step();
         auto s = e.render_frame(0).sharp;  // a frame without the square

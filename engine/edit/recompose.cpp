@@ -25,6 +25,14 @@ FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta,
     return frame_maps(L);
 }
 
+Image confidence_image(const FitEngine& engine, int t) {
+    torch::NoGradGuard no_grad;
+    auto k = engine.confidence(t);
+    auto w = engine.model_weight(t);
+    if (!w.defined()) w = torch::ones_like(k);
+    return tensor_to_image(torch::cat({k[0], w[0]}, 0).contiguous());
+}
+
 FrameMaps frame_maps(const Layers& L) {
     auto img = [](const torch::Tensor& x) {
         return x.defined() ? tensor_to_image(x[0].contiguous()) : Image();
