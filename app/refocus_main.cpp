@@ -27,7 +27,7 @@ const Command kCommands[] = {
      "ingest a video or image sequence into a new project"},
     {"info", refocus::cmd_info, "info <clip-or-project>",
      "print size, frames, fps and what a project holds"},
-    {"bench", refocus::cmd_bench, "bench blur|fit|motion|kernel|bound [options]",
+    {"bench", refocus::cmd_bench, "bench blur|fit|corpus|motion|kernel|bound [options]",
      "print benchmark figures (bench with no name lists them with their options)"},
     {"fit", refocus::cmd_fit,
      "fit <project> [--preset P] [--minutes M | --iters N] [--coc <pattern>]\n"
