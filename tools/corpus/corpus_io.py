@@ -1,4 +1,4 @@
-"""Pure-Python image writers and statistics for the corpus (no numpy: Blender's Python here has none).
+"""Pure-Python image writers and statistics for the corpus (Blender's Python here has no numpy).
 
 Blender 3.4 writes every OpenEXR as RGB or RGBA (its colour mode 'BW' is ignored for EXR), and the
 corpus wants 1-channel float EXRs, so this module writes them itself: a single-part scanline EXR
@@ -50,7 +50,8 @@ def write_png(path, width, height, channels, data):
 
 
 def _exr_attr(name, type_name, value):
-    return name.encode() + b"\x00" + type_name.encode() + b"\x00" + struct.pack("<i", len(value)) + value
+    return (name.encode() + b"\x00" + type_name.encode() + b"\x00" +
+            struct.pack("<i", len(value)) + value)
 
 
 def _zip_block(raw):

@@ -82,9 +82,12 @@ def draw_shot(spec):
     rng = random.Random(spec["seed"])
     W, H = spec["width"], spec["height"]
     s = {"rng": rng, "W": W, "H": H, "T": spec["frames"]}
-    s["f_mm"] = spec.get("focal_mm") or rng.choice([35, 50, 65, 85, 100, 135])
-    s["N"] = spec.get("fstop") or rng.choice([1.4, 1.8, 2.0, 2.8, 4.0])
-    s["sensor_mm"] = spec.get("sensor_mm") or rng.choice([36.0, 24.89])
+    # Drawn first, then overridden: a spec that fixes the lens keeps the rest of the draw.
+    s["f_mm"] = rng.choice([35, 50, 65, 85, 100, 135])
+    s["N"] = rng.choice([1.4, 1.8, 2.0, 2.8, 4.0])
+    s["sensor_mm"] = rng.choice([36.0, 24.89])
+    for key, name in (("f_mm", "focal_mm"), ("N", "fstop"), ("sensor_mm", "sensor_mm")):
+        s[key] = spec.get(name, s[key])
     f, sw = s["f_mm"] * 1e-3, s["sensor_mm"] * 1e-3
     s["K"] = f * f / (2 * s["N"]) * W / sw
     s["focal_px"] = f / sw * W
@@ -144,7 +147,6 @@ def build_set(s, spec, cplan):
         bpy.data.objects.remove(o)
     sb.set_lens(s["focal_px"])
     R = m * d * rng.uniform(1.1, 1.4)
-    cam_xy = (0.0, -d)
     sb.plane((0, -d, 0), (2.2 * R, 2.2 * R), (0, 0, 0), sb.material(rng, "ground", d))
     sb.dome((0, -d, 0), R, sb.dome_material(rng, R, rng.uniform(0.4, 0.9)))
     layout = {"hero_distance_m": round(d, 4), "backdrop_radius_m": round(R, 3)}
@@ -187,7 +189,9 @@ def build_set(s, spec, cplan):
               rng.uniform(-s["spread"], s["spread"]))
         x, y = sx * hw, D - d
         size = 2 * hw * rng.uniform(0.05, 0.2)
-        if wall_x is not None and abs(x - wall_x) < size or y > wall_y - size:
+        if wall_x is not None and (x - wall_x) * math.copysign(1, wall_x) > -size:
+            continue  # in or behind the side wall
+        if y > wall_y - size:
             continue
         if _blocks((x, y), size / 2 + 0.35 * s["H_s"], eyes, targets):
             continue  # would hide the subject / hero
@@ -195,8 +199,8 @@ def build_set(s, spec, cplan):
             continue
         if any(math.hypot(x - px, y - py) < size / 2 + pr for px, py, pr in placed):
             continue
-        if math.hypot(x - cam_xy[0], y - cam_xy[1]) < 0.45 * d:
-            continue
+        if any(math.hypot(x - ex, y - ey) < 0.25 * d + size / 2 for ex, ey in eyes):
+            continue  # too close to the camera's path
         placed.append((x, y, sb.prop(rng, x, y, size, D, "prop%d" % len(placed))))
     layout["props"] = len(placed)
     rig = sb.person(rng, s["H_s"], d) if path else None
@@ -243,8 +247,10 @@ def camera_plan(s, kind):
     c["pan"] = math.radians(rng.uniform(10, 22))
     c["orbit"] = math.radians(rng.uniform(25, 50))
     c["dolly"] = (1.3, 0.72) if kind == "dolly_in" else (0.72, 1.3)
-    # handheld: three sines per axis, ~0.3-1.2 deg of rotation, ~0.5% of d_h of translation
-    c["shake"] = [(rng.uniform(0.2, 0.6) * math.pi / 180 / (k + 1), rng.uniform(0.4, 3.0),
+    # handheld: three sines per axis (0.4-3 Hz), up to ~1 deg of rotation at 50 mm, less on
+    # longer lenses (held steadier, else the shake is tens of px), ~0.2% of d_h of translation
+    amp = math.radians(1.0) * math.sqrt(50.0 / s["f_mm"])
+    c["shake"] = [(amp * rng.uniform(0.2, 0.6) / (k + 1), rng.uniform(0.4, 3.0),
                    rng.uniform(0, 6.3)) for _ in range(6) for k in range(3)]
     return c
 
@@ -265,8 +271,8 @@ def camera_at(s, c, t, aim):
     rot = look.to_track_quat("-Z", "Y")
     if kind == "handheld":
         tt = t / FPS
-        v = [sum(a * math.sin(2 * math.pi * fr * tt + ph) for a, fr, ph in c["shake"][3 * i:3 * i + 3])
-             for i in range(6)]
+        waves = [c["shake"][3 * i:3 * i + 3] for i in range(6)]
+        v = [sum(a * math.sin(2 * math.pi * fr * tt + ph) for a, fr, ph in w) for w in waves]
         rot = rot @ Euler((v[0], v[1], 0.4 * v[2]), "XYZ").to_quaternion()
         pos = pos + Vector(v[3:6]) * (0.3 * s["d_h"])
     return Matrix.Translation(pos) @ rot.to_matrix().to_4x4()
@@ -326,8 +332,8 @@ def focus_plan(s, kind, z_s, z_near, z_bg):
                      "period_frames": round(period, 2)})
     else:
         where = rng.choice(["behind", "in_front", "bg"])
-        uw = {"behind": u_s[0] * rng.uniform(0.3, 0.6), "in_front": u_s[0] * rng.uniform(1.3, 1.8),
-              "bg": u_bg}[where]
+        uw = {"behind": u_s[0] * rng.uniform(0.3, 0.6),
+              "in_front": u_s[0] * rng.uniform(1.3, 1.8), "bg": u_bg}[where]
         u = [uw] * T
         info["where"] = where
     floor = 0.5 * u_bg  # never past twice the background
