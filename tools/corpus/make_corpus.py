@@ -103,6 +103,7 @@ def render(spec, out, blender, log):
         shutil.rmtree(final)
     os.rename(work, final)
     os.remove(spec_path)
+    os.remove(log_path)
     with open(os.path.join(final, "clip.json")) as f:
         st = json.load(f)["coc_stats_px"]
     log("%-20s %-3s done in %5.0f s: blur radius px median %.2f p90 %.2f max %.2f" %

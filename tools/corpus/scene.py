@@ -147,8 +147,9 @@ def build_set(s, spec, cplan):
         bpy.data.objects.remove(o)
     sb.set_lens(s["focal_px"])
     R = m * d * rng.uniform(1.1, 1.4)
-    sb.plane((0, -d, 0), (2.2 * R, 2.2 * R), (0, 0, 0), sb.material(rng, "ground", d))
-    sb.dome((0, -d, 0), R, sb.dome_material(rng, R, rng.uniform(0.4, 0.9)))
+    sb.plane((0, -d, 0), (2.2 * R, 2.2 * R), (0, 0, 0),
+             sb.material(rng, "ground", d)).name = "ground"  # names: see scene_depths
+    sb.dome((0, -d, 0), R, sb.dome_material(rng, R, rng.uniform(0.4, 0.9))).name = "backdrop"
     layout = {"hero_distance_m": round(d, 4), "backdrop_radius_m": round(R, 3)}
     wall_y, wall_x = (m - 1) * d, None
     if rng.random() < 0.5:
@@ -283,29 +284,33 @@ def cam_depth(M, p):
 
 
 def scene_depths(s, M):
-    """Depths along the optical axis seen through a 9x5 grid of the frame at camera matrix M:
-    (10th percentile, 80th percentile) -> the near props and the background."""
+    """Depths along the optical axis seen through a 17x9 grid of the frame at camera matrix M:
+    the nearest prop or wall (not the ground, the backdrop or the subject: a rack to "near"
+    lands on a thing) and the 80th percentile of everything (the background)."""
     sc = bpy.context.scene
     dg = bpy.context.evaluated_depsgraph_get()
     origin = M.translation
-    zs = []
-    for i in range(9):
-        for j in range(5):
-            x = (i / 8 - 0.5) * 0.9 * s["W"] / s["focal_px"]
-            y = (j / 4 - 0.5) * 0.9 * s["H"] / s["focal_px"]
+    zs, props = [], []
+    for i in range(17):
+        for j in range(9):
+            x = (i / 16 - 0.5) * 0.9 * s["W"] / s["focal_px"]
+            y = (j / 8 - 0.5) * 0.9 * s["H"] / s["focal_px"]
             dr = (M.to_3x3() @ Vector((x, y, -1.0))).normalized()
-            hit, loc, *_ = sc.ray_cast(dg, origin, dr)
+            hit, loc, _, _, obj, _ = sc.ray_cast(dg, origin, dr)
             if hit:
                 zs.append(cam_depth(M, loc))
+                if obj.pass_index != sb.SUBJECT_INDEX and obj.name not in ("ground", "backdrop"):
+                    props.append(zs[-1])
     zs.sort()
-    return corpus_io.percentile(zs, 10), corpus_io.percentile(zs, 80)
+    return min(props) if props else float("inf"), corpus_io.percentile(zs, 80)
 
 
 def focus_plan(s, kind, z_s, z_near, z_bg):
     """Per-frame focus distance (m). Works in inverse depth, where the blur is linear."""
     rng, T = s["rng"], s["T"]
     u_s = [1 / z for z in z_s]
-    u_near = max(1 / z_near, 1.6 * u_s[0]) if z_near < 0.8 * z_s[0] else 2.0 * u_s[0]
+    # "near": the nearest prop in view, or half the hero's distance when none is nearer
+    u_near = 1 / z_near if z_near < 0.8 * z_s[0] else 2.0 * u_s[0]
     u_bg = 1 / z_bg
     info = {"kind": kind}
     if kind == "rack":
@@ -492,6 +497,18 @@ def clip_stats(s, out):
     return st, corpus_io.radius_stats(subj) if subj else None
 
 
+def render_seconds(out, secs):
+    """Mean seconds a frame of this run; a run that rendered nothing (all frames were there)
+    keeps the figure of the clip.json it replaces."""
+    if secs:
+        return round(sum(secs) / len(secs), 2)
+    try:
+        with open(os.path.join(out, "clip.json")) as f:
+            return json.load(f).get("render_seconds_per_frame")
+    except (OSError, ValueError):
+        return None
+
+
 def clip_json(s, spec, info):
     """clip.json: the keys of a `refocus synth` clip where they apply, plus the shot's facts."""
     W = s["W"]
@@ -564,13 +581,13 @@ def main():
     stats, subj_stats = clip_stats(s, out)
     info = {"focus_distance_m": [round(z, 5) for z in focus],
             "focus_plan": finfo, "hero_depth_m": [round(z, 5) for z in z_s],
-            "near_depth_m": round(z_near, 4), "background_depth_m": round(z_bg, 4),
+            "near_depth_m": round(z_near, 4) if z_near < 1e30 else None,
+            "background_depth_m": round(z_bg, 4),
             "coc_stats_px": stats, "coc_subject_stats_px": subj_stats,
             "camera_world": [[round(v, 6) for row in M for v in row] for M in cams],
             "camera_world_meaning": "per frame, the camera's 4x4 world matrix, row-major "
                                     "(Blender: Z up, the camera looks down its local -Z)",
-            "layout": layout, "render_seconds_per_frame": round(sum(secs) / len(secs), 2)
-            if secs else None}
+            "layout": layout, "render_seconds_per_frame": render_seconds(out, secs)}
     corpus_io._atomic_write(os.path.join(out, "clip.json"),
                             (json.dumps(clip_json(s, spec, info), indent=2) + "\n").encode())
     print("scene.py: %s done in %.0f s; blur radius px median %.2f p90 %.2f max %.2f" %
