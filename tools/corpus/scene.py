@@ -346,6 +346,7 @@ def focus_plan(s, kind, z_s, z_near, z_bg):
 
 
 def setup_render(s, spec, work):
+    """Cycles, the compositor (Z and object index into one EXR in work) and the camera."""
     sc = bpy.context.scene
     sc.render.engine = "CYCLES"
     cy = sc.cycles
@@ -397,7 +398,7 @@ def setup_render(s, spec, work):
     co = bpy.data.objects.new("cam", cam)
     sc.collection.objects.link(co)
     sc.camera = co
-    return co, fo
+    return co
 
 
 def load_pixels(path):
@@ -575,7 +576,7 @@ def main():
     bpy.context.view_layer.update()
     z_near, z_bg = scene_depths(s, cams[0])
     focus, finfo = focus_plan(s, spec["focus"], z_s, z_near, z_bg)
-    cam_obj = setup_render(s, spec, os.path.join(out, ".work"))[0]
+    cam_obj = setup_render(s, spec, os.path.join(out, ".work"))
     t0 = time.time()
     secs = render_frames(s, spec, out, cam_obj, path, rig, cams, focus)
     stats, subj_stats = clip_stats(s, out)
