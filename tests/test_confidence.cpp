@@ -3,9 +3,14 @@
 
 #include <doctest/doctest.h>
 
+#include <cstdio>
 #include <vector>
 
 #include "fit/confidence.h"
+#include "io/clip.h"
+#include "io/image_file.h"
+#include "metrics/metrics.h"
+#include "test_util.h"
 
 using namespace refocus;
 
@@ -70,4 +75,54 @@ TEST_CASE("the unexplained share: a region far above the frame's typical residua
     CHECK(px_at(u, 4, 4) == doctest::Approx(0.0));
     CHECK(px_at(u, 40, 40) == doctest::Approx(0.0));
     CHECK_FALSE(unexplained_share(torch::full({1, 1, 4, 4}, -1.0), 4, 0.04).defined());
+}
+
+TEST_CASE("a region whose radius is wrong falls back to the shot; the rest keeps the fit") {
+    // Rack focus; the right half of each frame's radius map is another frame's (the focus pull
+    // run backwards): the shared atlas cannot explain both halves' frames alike.
+    test::TinyClip c = test::make_tiny("confidence_wrong_radius", "rack", "160x90");
+    const int T = 8, W = 160, H = 90;
+    const auto coc = read_all_frames((c.clip / "coc_%04d.exr").string());
+    REQUIRE(static_cast<int>(coc.size()) == T);
+    const fs::path wrong = c.dir / "wrong";
+    fs::create_directories(wrong);
+    Image half(W, H, 1, 0.0f);  // 1 on the right half: the wrong region
+    for (int y = 0; y < H; ++y)
+        for (int x = W / 2; x < W; ++x) half.pixels[y * W + x] = 1.0f;
+    for (int t = 0; t < T; ++t) {
+        Image m = coc[t];
+        for (int y = 0; y < H; ++y)
+            for (int x = W / 2; x < W; ++x) m.pixels[y * W + x] = coc[T - 1 - t].pixels[y * W + x];
+        char name[32];
+        std::snprintf(name, sizeof name, "coc_%04d.exr", t);
+        write_image_file((wrong / name).string(), m, PixelFormat::ExrFloat, false);
+    }
+    auto r = test::cli("fit '" + c.project.string() + "' --iters 200 --coc '" +
+                       (wrong / "coc_%04d.exr").string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    const auto sharp = test::export_sharp(c, "sharp");
+    r = test::cli("export '" + c.project.string() + "' --what confidence --format exr32 --out '" +
+                  (c.dir / "conf").string() + "'");
+    REQUIRE(r.code == 0);
+    const auto conf = read_all_frames((c.dir / "conf/confidence_%04d.exr").string());
+    const auto gt = read_all_frames((c.clip / "sharp_%04d.png").string());
+    const auto input = read_all_frames((c.clip / "input_%04d.png").string());
+    double out_wrong = 0, in_wrong = 0, out_right = 0, in_right = 0, k_wrong = 0, k_right = 0;
+    for (int t = 0; t < T; ++t) {
+        out_wrong += masked_psnr(sharp[t], gt[t], half, MaskRegion::Inside) / T;
+        in_wrong += masked_psnr(input[t], gt[t], half, MaskRegion::Inside) / T;
+        out_right += masked_psnr(sharp[t], gt[t], half, MaskRegion::Outside) / T;
+        in_right += masked_psnr(input[t], gt[t], half, MaskRegion::Outside) / T;
+        for (int y = 0; y < H; ++y)
+            for (int x = 0; x < W; ++x)
+                (x < W / 2 ? k_right : k_wrong) += conf[t].pixels[y * W + x] / (T * H * W / 2.0);
+    }
+    MESSAGE("wrong radius half: input " << in_wrong << " dB, output " << out_wrong
+                                        << " dB, confidence " << k_wrong);
+    MESSAGE("true radius half: input " << in_right << " dB, output " << out_right
+                                       << " dB, confidence " << k_right);
+    CHECK(out_wrong > in_wrong - 0.5);  // never (much) worse than the shot
+    CHECK(out_right > in_right + 1.0);  // where the model is right, it still fixes the shot
+    CHECK(k_wrong < k_right - 0.2);     // and the confidence pass says where
 }
