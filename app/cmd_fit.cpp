@@ -160,9 +160,9 @@ int cmd_export(int argc, char** argv) {
     const std::string out = a.get("out");
     std::vector<ExportPass> passes;
     if (what == "all") {
-        passes = {ExportPass::Sharp, ExportPass::Reblur, ExportPass::Atlas,   ExportPass::Alpha,
-                  ExportPass::Coc,   ExportPass::Uv,     ExportPass::Refocus, ExportPass::Depth,
-                  ExportPass::Confidence};
+        passes = {ExportPass::Sharp,   ExportPass::Reblur, ExportPass::Atlas,
+                  ExportPass::Alpha,   ExportPass::Coc,    ExportPass::Uv,
+                  ExportPass::Refocus, ExportPass::Depth,  ExportPass::Confidence};
     } else {
         passes = {parse_export_pass(what)};
     }

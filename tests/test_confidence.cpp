@@ -16,7 +16,9 @@ using namespace refocus;
 
 namespace {
 
-double px_at(const torch::Tensor& m, int y, int x) { return m[0][0][y][x].item<double>(); }
+double px_at(const torch::Tensor& m, int y, int x) {
+    return m[0][0][y][x].item<double>();
+}
 
 }  // namespace
 

@@ -10,7 +10,6 @@
 
 namespace refocus {
 
-
 // How much of frame t's residual the model leaves unexplained, [1,1,H,W] in [0,1], from its
 // running reblur residual `resid` ([1,1,H,W], sRGB, -1 where not measured yet: undefined
 // returned): smoothstep from max(k·median, min) to twice that, opened by 9 px (a thin band along

@@ -141,7 +141,7 @@ std::string FallbackShare::summary() const {
     if (frames == 0) return "no frame made from the sharp plate";
     char buf[256];
     int n = std::snprintf(buf, sizeof buf,
-                          "the plate is the shot on %.1f%% of pixels the fit cannot explain", 
+                          "the plate is the shot on %.1f%% of pixels the fit cannot explain",
                           100 * unexplained / frames);
     if (worst_frame >= 0 && worst_share > 0.001)
         n += std::snprintf(buf + n, sizeof buf - n, " (most in frame %d: %.1f%%)", worst_frame,

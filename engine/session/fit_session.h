@@ -43,8 +43,8 @@ struct FocusTrack;  // edit/focus.h
 struct FallbackShare {
     double unexplained = 0, in_focus = 0;
     int frames = 0;
-    int worst_frame = -1;     // the frame with the largest unexplained share
-    double worst_share = 0;   // ... and that share
+    int worst_frame = -1;         // the frame with the largest unexplained share
+    double worst_share = 0;       // ... and that share
     std::string summary() const;  // one line for the terminal
 };
 
@@ -57,7 +57,7 @@ struct ExportOptions {
     const FocusTrack* focus = nullptr;       // focus keys to use instead of the project's section
     int first = 0, last = -1;                // frames first..last (-1: the last frame)
     std::function<bool(int, int)> progress;  // (done, total); false cancels
-    FallbackShare* fallback = nullptr;        // filled by the passes made from the plate
+    FallbackShare* fallback = nullptr;       // filled by the passes made from the plate
 };
 
 // Writes one pass. Sequences go to `out` (a folder) as <what>_%04d.<ext> numbered from 0 (the
