@@ -19,9 +19,9 @@ FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta,
                      const torch::Tensor& fg_delta) {
     torch::NoGradGuard no_grad;
     Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
-    const torch::Tensor model_sharp = L.sharp;
+    const Layers model = L;
     apply_edits(L, bg_delta, fg_delta);
-    engine.apply_fallback(L, t, model_sharp);
+    engine.apply_fallback(L, t, &model);
     return frame_maps(L);
 }
 

@@ -307,15 +307,21 @@ torch::Tensor FitEngine::model_weight(int t) const {
     return w;
 }
 
-void FitEngine::apply_fallback(Layers& L, int t, const torch::Tensor& model_sharp) const {
+void FitEngine::apply_fallback(Layers& L, int t, const Layers* model) const {
     auto w = model_weight(t);
     if (!w.defined() || !L.sharp.defined()) return;
     torch::NoGradGuard g;
     auto in = m_data->input[t].unsqueeze(0);
-    if (model_sharp.defined())
-        L.sharp = w * model_sharp + (1.0 - w) * in + (L.sharp - model_sharp);
-    else
-        L.sharp = w * L.sharp + (1.0 - w) * in;
+    // The layers blend as the plate does, so that α·F + (1 − α)·B stays the plate (the
+    // refocused frames are made from the layers); edits (x − the model's x) stay on top.
+    auto blend = [&](torch::Tensor& x, const torch::Tensor& x_model) {
+        if (!x.defined()) return;
+        const torch::Tensor& base = x_model.defined() ? x_model : x;
+        x = w * base + (1.0 - w) * in + (x - base);
+    };
+    blend(L.sharp, model ? model->sharp : torch::Tensor());
+    blend(L.bg, model ? model->bg : torch::Tensor());
+    blend(L.fg, model ? model->fg : torch::Tensor());
 }
 
 }  // namespace refocus

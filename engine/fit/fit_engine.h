@@ -115,10 +115,11 @@ class FitEngine {
     // The model's share of the output: confidence(t) times the need (0 where no blur reaches
     // the pixel, fit.keep_focus_px). [1,1,H,W], undefined when it is 1 everywhere.
     torch::Tensor model_weight(int t) const;
-    // L.sharp (frame t, batch of one) blended with the input by model_weight(t). When atlas
-    // edits were drawn into L, `model_sharp` is L.sharp before them: the fallback blends that,
-    // and the edits stay on top (paint on the atlas shows in every frame, fallback or not).
-    void apply_fallback(Layers& L, int t, const torch::Tensor& model_sharp = {}) const;
+    // L's sharp frame and layers (frame t, batch of one) blended with the input by
+    // model_weight(t). When atlas edits were drawn into L, `model` is L before them: the
+    // fallback blends that, and the edits stay on top (paint on the atlas shows in every frame,
+    // fallback or not).
+    void apply_fallback(Layers& L, int t, const Layers* model = nullptr) const;
     FitModel& model() { return *m_model; }
     const FitData& data() const { return *m_data; }
     const FitOptions& options() const { return m_opts; }

@@ -237,12 +237,12 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
     torch::NoGradGuard no_grad;
     for (int t = first; t <= last; ++t) {
         Layers L = engine.render_frame(t);
-        const torch::Tensor model_sharp = L.sharp;
+        const Layers model = L;
         apply_edits(L, d_bg, d_fg);
         // The sharp plate and what is made from it fall back to the shot where the fit failed
         // (the edits stay on top); the reblur and the layers stay the model's.
         if (pass == ExportPass::Sharp || needs_project) {
-            engine.apply_fallback(L, t, model_sharp);
+            engine.apply_fallback(L, t, &model);
             if (o.fallback) count_fallback(engine, t, *o.fallback);
         }
         Image frame;
