@@ -79,6 +79,28 @@ TEST_CASE("the unexplained share: a region far above the frame's typical residua
     CHECK_FALSE(unexplained_share(torch::full({1, 1, 4, 4}, -1.0), 4, 0.04).defined());
 }
 
+TEST_CASE("the low-frequency lock: a colour shift is undone, fine detail is kept") {
+    torch::manual_seed(3);
+    const int H = 40, W = 48;
+    auto input = torch::rand({1, 3, H, W}) * 0.5 + 0.25;
+    // A model frame with the input's content, every channel shifted, plus a 1-px checker: the
+    // detail a deblur adds.
+    auto yy = torch::arange(H).view({H, 1}), xx = torch::arange(W).view({1, W});
+    auto checker = (((yy + xx) % 2) * 2 - 1).to(torch::kFloat32).view({1, 1, H, W}) * 0.1;
+    auto shift = torch::tensor({0.04f, -0.03f, 0.02f}).view({1, 3, 1, 1});
+    auto model = input + shift + checker;
+    auto fixed = model + low_frequency_lock(model, input, 2.0);
+    // Each channel's mean comes back to the input's (the 0.5 code-value target is ~0.002).
+    auto mean_err = (fixed - input).mean({0, 2, 3}).abs().max().item<double>();
+    CHECK(mean_err < 1e-3);
+    // The checker (far above the lock's scale) stays: what is left of the change is it.
+    auto kept = ((fixed - input) * checker).sum().item<double>() / (checker * checker).sum().item<double>();
+    CHECK(kept > 0.95);
+    // The Gaussian keeps a constant (edges replicated) and sums to one.
+    auto c = torch::full({1, 1, 9, 9}, 0.3f);
+    CHECK((gaussian_blur(c, 2.0) - 0.3).abs().max().item<double>() < 1e-6);
+}
+
 TEST_CASE("a region whose radius is wrong falls back to the shot; the rest keeps the fit") {
     // Rack focus; the right half of each frame's radius map is another frame's (the focus pull
     // run backwards): the shared atlas cannot explain both halves' frames alike.

@@ -334,10 +334,12 @@ TEST_CASE(
                                             << off << ", with the path " << on);
     CHECK(on > off + 1.0);
     {
-        // Left to the model, a fit with the path takes 4 frames a step and says so; without, 2.
+        // Left to the model, a fit with the path takes 4 frames a step and says so; without (the
+        // default), 2.
         FitOptions o;
         o.preset = "fast";
         o.iters = 1;
+        o.settings.set("fast.deblur_path", "true");
         FitEngine with(std::make_shared<FitData>(*d), o);
         CHECK(with.batch() == 4);
         REQUIRE(with.model_notes().size() == 2);
@@ -350,6 +352,7 @@ TEST_CASE(
 
     FastModelOptions o;
     o.align_rounds = 0;
+    o.deblur_path = true;
     FastModel m(*d, o);
     auto s = m.state();
     REQUIRE(s.count("bg_deblur"));

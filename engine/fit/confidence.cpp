@@ -89,4 +89,24 @@ torch::Tensor blur_need(const torch::Tensor& radius, double focus_px) {
     return smoothstep01((reach - focus_px) / focus_px);
 }
 
+torch::Tensor gaussian_blur(const torch::Tensor& x, double sigma) {
+    const int r = std::max(1, int(std::ceil(3 * sigma)));
+    auto k = torch::arange(-r, r + 1, x.options());
+    k = torch::exp(-k * k / (2 * sigma * sigma));
+    k = k / k.sum();
+    const int64_t c = x.size(1);
+    auto kx = k.view({1, 1, 1, -1}).repeat({c, 1, 1, 1});
+    auto ky = k.view({1, 1, -1, 1}).repeat({c, 1, 1, 1});
+    auto y = F::pad(x, F::PadFuncOptions({r, r, 0, 0}).mode(torch::kReplicate));
+    y = F::conv2d(y, kx, F::Conv2dFuncOptions().groups(c));
+    y = F::pad(y, F::PadFuncOptions({0, 0, r, r}).mode(torch::kReplicate));
+    return F::conv2d(y, ky, F::Conv2dFuncOptions().groups(c));
+}
+
+torch::Tensor low_frequency_lock(const torch::Tensor& model, const torch::Tensor& input,
+                                 double sigma) {
+    torch::NoGradGuard g;
+    return gaussian_blur(input - model, sigma);
+}
+
 }  // namespace refocus

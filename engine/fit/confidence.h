@@ -33,4 +33,14 @@ torch::Tensor temporal_unexplained(int t, int frames, int window, const torch::T
 // blurred subject's spill over an in-focus wall counts as blur to fix. radius [H,W] px.
 torch::Tensor blur_need(const torch::Tensor& radius, double focus_px);
 
+// Separable Gaussian of standard deviation sigma px (support ±3σ, edges replicated), [N,C,H,W].
+torch::Tensor gaussian_blur(const torch::Tensor& x, double sigma);
+
+// The low-frequency lock: the correction G_σ(I) − G_σ(C) that gives the model's frame C
+// ([N,C,H,W]) the input I's content below scale σ. A lens blur keeps local means, so the
+// difference there is the model's error (a colour shift, a misregistered edge), never detail
+// the blur removed. Added to every layer, α·F + (1 − α)·B takes it as the plate does.
+torch::Tensor low_frequency_lock(const torch::Tensor& model, const torch::Tensor& input,
+                                 double sigma);
+
 }  // namespace refocus

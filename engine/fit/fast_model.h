@@ -49,8 +49,10 @@ struct FastModelOptions {
     // The deblurring path: a second parameterisation of each atlas, d * Q, where Q's response
     // rises where the layer's typical blur attenuates the scene (make_deblur_path). Adam moves
     // each texel by ~lr whatever its gradient's size, so detail that the blur passed at a few
-    // percent converges that much slower on the texels alone; through Q it does not.
-    bool deblur_path = true;
+    // percent converges that much slower on the texels alone; through Q it does not. Off by
+    // default: on the rendered corpus's dev clips (sensor and render noise, estimated radius)
+    // its gain turns noise and radius errors into ringing (docs/method.md, Deblurring path).
+    bool deblur_path = false;
     double deblur_eps = 0.003;       // Q's gain is capped at ~1/sqrt(eps)
     double deblur_lr = 0.3;          // times lr_atlas
     double deblur_min_radius = 2.0;  // px: a layer blurred less has no path

@@ -308,16 +308,25 @@ torch::Tensor FitEngine::model_weight(int t) const {
 }
 
 void FitEngine::apply_fallback(Layers& L, int t, const Layers* model) const {
+    if (!L.sharp.defined() || t < 0 || t >= m_data->frames) return;
     auto w = model_weight(t);
-    if (!w.defined() || !L.sharp.defined()) return;
+    const bool lock = m_opts.lock_low_px > 0;
+    if (!w.defined() && !lock) return;
     torch::NoGradGuard g;
     auto in = m_data->input[t].unsqueeze(0);
+    // The lock's correction, from the model's plate, is added to every layer so that
+    // α·F + (1 − α)·B takes it as the plate does.
+    torch::Tensor lift;
+    if (lock)
+        lift = low_frequency_lock(model && model->sharp.defined() ? model->sharp : L.sharp, in,
+                                  m_opts.lock_low_px);
     // The layers blend as the plate does, so that α·F + (1 − α)·B stays the plate (the
     // refocused frames are made from the layers); edits (x − the model's x) stay on top.
     auto blend = [&](torch::Tensor& x, const torch::Tensor& x_model) {
         if (!x.defined()) return;
         const torch::Tensor& base = x_model.defined() ? x_model : x;
-        x = w * base + (1.0 - w) * in + (x - base);
+        auto fixed = lift.defined() ? base + lift : base;
+        x = (w.defined() ? w * fixed + (1.0 - w) * in : fixed) + (x - base);
     };
     blend(L.sharp, model ? model->sharp : torch::Tensor());
     blend(L.bg, model ? model->bg : torch::Tensor());

@@ -48,6 +48,10 @@ struct FitOptions {
     // Nothing to fix: where no blur of at least this radius (px) reaches a pixel, the output is
     // the shot (0: off).
     double keep_focus_px = 0.25;
+    // Low-frequency lock (confidence.h, lock_low_frequencies): below this Gaussian scale (px)
+    // the plate takes the input's content, since a blur keeps local means and a colour or
+    // exposure shift is never a deblur (0: off).
+    double lock_low_px = 2.0;
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;

@@ -52,6 +52,8 @@ const std::vector<Field<FitOptions>>& fit_fields() {
         {"fit.fallback_min", &O::fallback_min, 0, 1, "... and from at least this residual (sRGB)"},
         {"fit.fallback_frames", &O::fallback_frames, 0, 12,
          "the fallback is smooth in time: grown over +-n frames, then averaged over +-n"},
+        {"fit.lock_low_px", &O::lock_low_px, 0, 64,
+         "the plate takes the input's content below this Gaussian scale (px); 0: off"},
         {"fit.keep_focus_px", &O::keep_focus_px, 0, 8,
          "where no blur of at least this radius (px) reaches a pixel, the output is the shot "
          "(0: off)"},
