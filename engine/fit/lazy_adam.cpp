@@ -35,13 +35,18 @@ torch::Tensor LazyAdam::step(LossClosure closure) {
             s.step(s.step() + 1);
             const double c1 = 1 - std::pow(b1, double(s.step())),
                          c2 = 1 - std::pow(b2, double(s.step()));
-            auto touched = g != 0;
-            auto& m = s.exp_avg();
-            auto& v = s.exp_avg_sq();
-            m.copy_(torch::where(touched, m * b1 + g * (1 - b1), m));
-            v.copy_(torch::where(touched, v * b2 + g * g * (1 - b2), v));
-            auto denom = (v.sqrt() / std::sqrt(c2)).add_(o.eps());
-            p.sub_(torch::where(touched, m / denom, torch::zeros({}, m.options())) * (o.lr() / c1));
+            // Only the touched entries (a crop's few boxes of each atlas) are read and written:
+            // the cost follows the crop, bar one pass to find them.
+            auto at = g.flatten().nonzero().squeeze(1);
+            if (at.numel() == 0) continue;
+            auto m = s.exp_avg().view({-1}), v = s.exp_avg_sq().view({-1});
+            auto gi = g.flatten().index_select(0, at);
+            auto mi = m.index_select(0, at).mul_(b1).add_(gi, 1 - b1);
+            auto vi = v.index_select(0, at).mul_(b2).addcmul_(gi, gi, 1 - b2);
+            m.index_copy_(0, at, mi);
+            v.index_copy_(0, at, vi);
+            auto step = mi.div_(vi.sqrt_().div_(std::sqrt(c2)).add_(o.eps())).mul_(-o.lr() / c1);
+            p.view({-1}).index_add_(0, at, step);
         }
     }
     return loss;
