@@ -149,7 +149,7 @@ int cmd_export(int argc, char** argv) {
     if (a.positional().size() != 1 || !a.has("out"))
         throw Error(
             "usage: refocus export <project> --what "
-            "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|all "
+            "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|all "
             "[--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>");
     Project project = Project::load(a.positional()[0]);
     PrepareLog log;
@@ -160,8 +160,9 @@ int cmd_export(int argc, char** argv) {
     const std::string out = a.get("out");
     std::vector<ExportPass> passes;
     if (what == "all") {
-        passes = {ExportPass::Sharp, ExportPass::Reblur, ExportPass::Atlas,   ExportPass::Alpha,
-                  ExportPass::Coc,   ExportPass::Uv,     ExportPass::Refocus, ExportPass::Depth};
+        passes = {ExportPass::Sharp,   ExportPass::Reblur, ExportPass::Atlas,
+                  ExportPass::Alpha,   ExportPass::Coc,    ExportPass::Uv,
+                  ExportPass::Refocus, ExportPass::Depth,  ExportPass::Confidence};
     } else {
         passes = {parse_export_pass(what)};
     }
@@ -188,9 +189,13 @@ int cmd_export(int argc, char** argv) {
                        "frame " + std::to_string(done) + "/" + std::to_string(total));
             return true;
         };
+        FallbackShare share;
+        eo.fallback = &share;
         auto files = export_pass(*engine, p, format, target, eo);
         bar.done(std::to_string(files.size()) + " file(s)");
         std::printf("%s: %zu file(s) in %s\n", export_pass_name(p), files.size(), target.c_str());
+        // Never worse than the shot, and say so (docs/method.md, Confidence and fallback).
+        if (share.frames > 0) std::printf("  %s\n", share.summary().c_str());
     }
     return 0;
 }

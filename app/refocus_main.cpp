@@ -27,7 +27,7 @@ const Command kCommands[] = {
      "ingest a video or image sequence into a new project"},
     {"info", refocus::cmd_info, "info <clip-or-project>",
      "print size, frames, fps and what a project holds"},
-    {"bench", refocus::cmd_bench, "bench blur|fit|motion|kernel|bound [options]",
+    {"bench", refocus::cmd_bench, "bench blur|fit|corpus|motion|kernel|bound [options]",
      "print benchmark figures (bench with no name lists them with their options)"},
     {"fit", refocus::cmd_fit,
      "fit <project> [--preset P] [--minutes M | --iters N] [--coc <pattern>]\n"
@@ -40,7 +40,7 @@ const Command kCommands[] = {
      "2);\n"
      "           --set: a tuning setting (kept in project.json; --list-settings lists them)"},
     {"export", refocus::cmd_export,
-     "export <project> --what sharp|reblur|atlas|alpha|coc|uv|refocus|depth|all\n"
+     "export <project> --what sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|all\n"
      "           [--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>",
      "write the fit's results: sequences <what>_%04d.<ext> from 0, or an mp4"},
     {"atlas", refocus::cmd_atlas,

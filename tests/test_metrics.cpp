@@ -92,6 +92,35 @@ TEST_CASE("tPSNR by hand") {
     CHECK_THROWS_AS(tpsnr({gt[0]}, {gt[0]}), Error);
 }
 
+TEST_CASE("masked PSNR by hand: inside and outside the mask") {
+    // The left half (x < 4 of 8) is off by 5 code levels, the right half by 10; the mask covers
+    // the left half (values 0.5 and 1: both inside; 0.49: outside).
+    Image gt = code_image(8, 4, 100), pred = gt, mask(8, 4, 1, 0.0f);
+    for (int y = 0; y < 4; ++y)
+        for (int x = 0; x < 8; ++x) {
+            const int code = x < 4 ? 105 : 110;
+            for (int c = 0; c < 3; ++c) pred.at(x, y, c) = srgb8_to_linear_table()[code];
+            mask.at(x, y, 0) = x < 4 ? (x % 2 ? 0.5f : 1.0f) : 0.49f;
+        }
+    CHECK(masked_psnr(pred, gt, mask, MaskRegion::Inside) ==
+          doctest::Approx(20 * std::log10(255.0 / 5)).epsilon(1e-9));
+    CHECK(masked_psnr(pred, gt, mask, MaskRegion::Outside) ==
+          doctest::Approx(20 * std::log10(255.0 / 10)).epsilon(1e-9));
+    // The whole frame: MSE (25 + 100) / 2.
+    CHECK(psnr(pred, gt) == doctest::Approx(10 * std::log10(255.0 * 255 / 62.5)).epsilon(1e-9));
+    // An all-inside mask gives the plain PSNR; the empty region gives NaN.
+    Image all(8, 4, 1, 1.0f);
+    CHECK(masked_psnr(pred, gt, all, MaskRegion::Inside) == doctest::Approx(psnr(pred, gt)));
+    CHECK(std::isnan(masked_psnr(pred, gt, all, MaskRegion::Outside)));
+    // A 4-channel mask is read from its first channel; a mask of another size is an error.
+    Image rgba(8, 4, 4, 0.0f);
+    for (int y = 0; y < 4; ++y)
+        for (int x = 0; x < 4; ++x) rgba.at(x, y, 0) = 1.0f;
+    CHECK(masked_psnr(pred, gt, rgba, MaskRegion::Inside) ==
+          doctest::Approx(20 * std::log10(255.0 / 5)).epsilon(1e-9));
+    CHECK_THROWS_AS(masked_psnr(pred, gt, Image(4, 4, 1, 1.0f), MaskRegion::Inside), Error);
+}
+
 TEST_CASE("error by spatial frequency band") {
     // A random image and two predictions of it, in linear metric space (no rounding): the image
     // itself, and its contrast halved about its mean. Both are linear in the DFT, so the gain

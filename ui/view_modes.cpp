@@ -80,6 +80,31 @@ Image render_depth(const ModeInput& in) {
     return coc_heatmap(g, 1.0);
 }
 
+// The shot in grey, tinted green where the sharp plate comes from the fit and red where the fit
+// cannot explain the region and the plate falls back to the shot; grey stays grey where nothing
+// is blurred (the plate is the shot, and needs nothing). docs/method.md, Confidence and fallback.
+Image render_confidence(const ModeInput& in) {
+    if (!in.view || in.view->confidence.empty()) return in.input;
+    const Image& c = in.view->confidence;
+    const Image& src = in.input;
+    Image out(src.width, src.height, 3);
+    const size_t n = static_cast<size_t>(src.width) * src.height;
+    const float sx = float(c.width) / src.width, sy = float(c.height) / src.height;
+    for (size_t i = 0; i < n; ++i) {
+        const int x = static_cast<int>(i % src.width), y = static_cast<int>(i / src.width);
+        const size_t j = static_cast<size_t>(std::min(c.height - 1, int(y * sy))) * c.width +
+                         std::min(c.width - 1, int(x * sx));
+        const float* p = &src.pixels[i * src.channels];
+        const float lum = linear_to_srgb(0.2126f * p[0] + 0.7152f * p[1] + 0.0722f * p[2]);
+        const float k = c.pixels[j * c.channels], w = c.pixels[j * c.channels + 1];
+        const float base = 0.45f * lum, red = 1.0f - k, green = w;
+        const float rgb[3] = {base + 0.55f * red, base + 0.45f * green * (1 - red), base};
+        for (int ch = 0; ch < 3; ++ch)
+            out.pixels[i * 3 + ch] = srgb_to_linear(std::clamp(rgb[ch], 0.0f, 1.0f));
+    }
+    return out;
+}
+
 Image render_alpha(const ModeInput& in) {
     if (!in.view || in.view->maps.alpha.empty()) return black(in);
     return grey_to_rgb(in.view->maps.alpha);
@@ -102,6 +127,11 @@ const std::vector<ViewModeInfo>& view_modes() {
         {"depth", "Depth", "The fitted inverse depth, near is bright", 0, true, false, false,
          render_depth},
         {"alpha", "Alpha", "The foreground layer's matte", 0, true, false, false, render_alpha},
+        {"confidence", "Confidence",
+         "Green: the sharp plate comes from the fit. Red: the fit cannot explain the region and "
+         "the plate falls back to the shot. Grey: nothing is blurred there; the plate is the "
+         "shot",
+         0, true, false, false, render_confidence},
     };
     return modes;
 }

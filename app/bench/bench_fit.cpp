@@ -4,9 +4,9 @@
 #include <sstream>
 
 #include "args.h"
+#include "bench_eval.h"
 #include "commands.h"
 #include "session/fit_session.h"
-#include "io/tensor_image.h"
 #include "metrics/metrics.h"
 #include "util/error.h"
 
@@ -14,63 +14,10 @@ namespace refocus {
 
 namespace {
 
-struct Row {
-    double minutes = 0;
-    int64_t step = 0;
-    double psnr = 0, ssim = 0, tpsnr = 0, reblur_psnr = 0;
-    int frames_done = 0;                            // frames the figures cover
-    double in_psnr = 0, in_ssim = 0, in_tpsnr = 0;  // the input's on the same frames
-};
-
-// Figures over the frames the fit has produced. `perframe` deconvolves one frame per step and
-// may run out of time before the last: the frames not reached still hold the input, so they
-// are left out (and the input's figures are recomputed on the same frames for the comparison);
-// tPSNR then covers the leading run of consecutive frames done.
-struct Frames {
-    std::vector<Image> sharp, gt, input;  // on the frames done
-};
-
-Row evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<Image>& input,
-             Frames* keep = nullptr) {
-    std::vector<Image> sharp, reblur, g, in;
-    for (int t = 0; t < static_cast<int>(gt.size()); ++t) {
-        if (!engine.frame_done(t)) continue;
-        Layers L = engine.render_frame(t);
-        torch::NoGradGuard ng;
-        reblur.push_back(tensor_to_image(engine.reblur(L, {t})[0].clamp_min(0)));
-        engine.apply_fallback(L, t);
-        sharp.push_back(tensor_to_image(L.sharp[0].clamp_min(0)));
-        g.push_back(gt[t]);
-        in.push_back(input[t]);
-    }
-    Row r;
-    FitSnapshot s = engine.snapshot();
-    r.minutes = s.elapsed_s / 60.0;
-    r.step = s.step;
-    r.frames_done = static_cast<int>(sharp.size());
-    if (sharp.empty()) return r;
-    r.psnr = mean_psnr(sharp, g);
-    r.ssim = mean_ssim(sharp, g);
-    r.reblur_psnr = mean_psnr(reblur, in);
-    r.in_psnr = mean_psnr(in, g);
-    r.in_ssim = mean_ssim(in, g);
-    // Consecutive frames only (all of them unless perframe stopped early: it goes in order).
-    int run = 0;
-    while (run < static_cast<int>(gt.size()) && engine.frame_done(run)) ++run;
-    if (run > 1) {
-        std::vector<Image> a(sharp.begin(), sharp.begin() + run), b(g.begin(), g.begin() + run),
-            c(in.begin(), in.begin() + run);
-        r.tpsnr = tpsnr(a, b);
-        r.in_tpsnr = tpsnr(c, b);
-    }
-    if (keep) *keep = Frames{std::move(sharp), std::move(g), std::move(in)};
-    return r;
-}
-
 // Where the sharp output's error lies in spatial frequency, beside the input's (metrics.h,
 // error_by_band): what a band's error is made of tells a prior's shrinkage (gain under 1 where
 // the blur passed the band) from what the input never held.
-void print_bands(const Frames& f) {
+void print_bands(const EvalFrames& f) {
     const std::vector<double> edges{0, .02, .04, .06, .08, .1, .13, .16, .2, .25, .3, .4, .5, .71};
     const auto out = error_by_band(f.sharp, f.gt, edges), in = error_by_band(f.input, f.gt, edges);
     std::printf(
@@ -120,17 +67,7 @@ int bench_fit(int argc, char** argv) {
     std::vector<Image> input;
     for (int t = 0; t < project.frames; ++t) input.push_back(project.read_frame(t));
 
-    FitSettings s;
-    Settings settings;
-    for (const auto& assignment : a.get_all("set")) settings.set_assignment(assignment);
-    use_settings(s, settings);
-    s.fit.preset = preset;
-    s.fit.minutes = minutes;
-    s.fit.iters = a.get_int("iters", 0);
-    s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
-    if (a.has("batch"))
-        s.fit.batch = checked_batch_arg(
-            a.get_int("batch", 0));  // frames per step; left out: the model's choice
+    FitSettings s = bench_fit_settings(a, preset, minutes);
     if (oracle) s.setup.coc_path = (clip / "coc_%04d.exr").string();
     if (a.has("coc"))
         s.setup.coc_path = a.get("coc");  // radius maps to try (e.g. the truth scaled)
@@ -144,7 +81,7 @@ int bench_fit(int argc, char** argv) {
     for (const auto& line : engine.model_notes()) log.info(line);
 
     std::vector<double> at = parse_times(a.get("at", "0.5,1,2,5,10,20,30"));
-    std::vector<Row> rows;
+    std::vector<EvalRow> rows;
     const double in_psnr = mean_psnr(input, gt), in_ssim = mean_ssim(input, gt);
     const double in_t = gt.size() > 1 ? tpsnr(input, gt) : 0.0;
     std::printf("clip %s (%dx%d, %d frames), preset %s, radius %s, masks %s\n",
@@ -167,20 +104,20 @@ int bench_fit(int argc, char** argv) {
         if (next < at.size() && el >= at[next]) {
             while (next < at.size() && el >= at[next]) ++next;
             rows.push_back(evaluate(engine, gt, input));
-            const Row& r = rows.back();
+            const EvalRow& r = rows.back();
             std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f %4d/%d\n", r.minutes,
                         (long long)r.step, r.psnr, r.ssim, r.tpsnr, r.reblur_psnr, r.frames_done,
                         project.frames);
             std::fflush(stdout);
         }
     }
-    Frames last;
+    EvalFrames last;
     rows.push_back(evaluate(engine, gt, input, &last));
     // Keep the result: `refocus export <work>` shows what the figures measured.
     engine.save_checkpoint(fit_dir(project));
     FitSnapshot snap = engine.snapshot();
     write_fit_settings(project, s, &snap);
-    const Row& r = rows.back();
+    const EvalRow& r = rows.back();
     std::printf("%8.2f %7lld %9.2f %7.4f %9.2f %12.2f %4d/%d (end)\n", r.minutes, (long long)r.step,
                 r.psnr, r.ssim, r.tpsnr, r.reblur_psnr, r.frames_done, project.frames);
     std::printf("fitted project kept in %s\n", work.string().c_str());
@@ -196,7 +133,7 @@ int bench_fit(int argc, char** argv) {
         std::ostringstream csv;
         csv << "clip,preset,radius,minutes,step,psnr,ssim,tpsnr,reblur_psnr,input_psnr,input_tpsnr,"
                "frames_done,input_ssim\n";
-        for (const Row& x : rows)
+        for (const EvalRow& x : rows)
             csv << clip.filename().string() << "," << preset << ","
                 << (oracle         ? "oracle"
                     : a.has("coc") ? "given"

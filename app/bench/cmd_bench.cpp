@@ -198,6 +198,12 @@ const Bench kBenches[] = {
      "N]\n"
      "             [--seed S] [--work <dir>] [--set name=value]...\n"
      "             run time against error: sharp PSNR/SSIM/tPSNR vs ground truth, reblur PSNR"},
+    {"corpus", bench_corpus,
+     "corpus <dir> [--split dev|val|all] [--preset P] [--minutes M | --iters N] [--oracle-coc]\n"
+     "             [--csv FILE] [--seed S] [--batch N] [--set name=value]...\n"
+     "             every clip of a corpus split fitted as bench fit does: one table of input\n"
+     "             and output PSNR/SSIM/tPSNR, worst frame, PSNR inside/outside the mask\n"
+     "             (CSV default: <dir>/bench_<split>_<preset>.csv)"},
     {"motion", bench_motion,
      "motion --clip <synth-dir> [--pairs] [--dump <dir>]\n"
      "             camera motion (prepare's homographies) against the clip's true wall motion"},
@@ -222,10 +228,11 @@ int cmd_bench(int argc, char** argv) {
     std::string which = argc > 2 ? argv[2] : "";
     for (const auto& b : kBenches)
         if (which == b.name) return b.run(argc, argv);
-    std::string msg = which.empty() ? "which benchmark?" : "unknown benchmark '" + which + "'";
-    msg += "; available:";
-    for (const auto& b : kBenches) msg += std::string("\n  refocus bench ") + b.help;
-    throw Error(msg);
+    // The list goes to stderr first: main prints only an error's first line.
+    std::fprintf(stderr, "available:\n");
+    for (const auto& b : kBenches) std::fprintf(stderr, "  refocus bench %s\n", b.help);
+    throw Error(which.empty() ? "which benchmark? (listed above)"
+                              : "unknown benchmark '" + which + "' (listed above)");
 }
 
 }  // namespace refocus

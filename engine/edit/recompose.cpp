@@ -19,10 +19,18 @@ FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta,
                      const torch::Tensor& fg_delta) {
     torch::NoGradGuard no_grad;
     Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
-    const torch::Tensor model_sharp = L.sharp;
+    const Layers model = L;
     apply_edits(L, bg_delta, fg_delta);
-    engine.apply_fallback(L, t, model_sharp);
+    engine.apply_fallback(L, t, &model);
     return frame_maps(L);
+}
+
+Image confidence_image(const FitEngine& engine, int t) {
+    torch::NoGradGuard no_grad;
+    auto k = engine.confidence(t);
+    auto w = engine.model_weight(t);
+    if (!w.defined()) w = torch::ones_like(k);
+    return tensor_to_image(torch::cat({k[0], w[0]}, 0).contiguous());
 }
 
 FrameMaps frame_maps(const Layers& L) {

@@ -26,6 +26,11 @@ FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta,
 // The first frame of a rendered batch (e.g. after edit/atlas_edit.h apply_edits).
 FrameMaps frame_maps(const Layers& layers);
 
+// Frame t's confidence (channel 0, FitEngine::confidence: 1 where the fit explains the pixel)
+// and the fit's share of the sharp plate (channel 1, FitEngine::model_weight: 0 where the plate
+// is the shot), as a 2-channel image of the frame's size.
+Image confidence_image(const FitEngine& engine, int t);
+
 // The frame's layers as the depth-of-field pass takes them (one layer: an empty foreground).
 PreviewLayers preview_layers(const FrameMaps& m);
 // render_dof of m's layers with depth.frame_depth(t, ...) and `lens`. Aperture 0 gives the sharp

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "fit/confidence.h"
 #include "fit/lazy_adam.h"
 #include "fit/losses.h"
 #include "radius/stack_coc.h"
@@ -419,38 +420,55 @@ Layers FitEngine::render_frame(int t) {
 torch::Tensor FitEngine::fallback_weight(int t) const {
     if (m_model->steps_itself() || !(m_opts.fallback_k > 0) || t < 0 || t >= m_data->frames)
         return {};
-    torch::NoGradGuard g;
-    auto r = m_resid[t].unsqueeze(0);  // [1,1,H,W]
-    if ((r < 0).any().item<bool>()) return {};
-    const double lo = std::max(m_opts.fallback_k * r.median().item<double>(), m_opts.fallback_min);
-    auto x = ((r - lo) / lo).clamp(0, 1);
-    auto f = x * x * (3 - 2 * x);  // smoothstep(lo, 2·lo)
-    // Opened by 9 px: the thin band along an occlusion edge that one layer explains poorly is
-    // still better fitted than the shot (it would flicker between the two); a subject the masks
-    // missed is a region.
-    const int e = 4;
-    if (e > 0) {
-        f = -F::max_pool2d(-f, F::MaxPool2dFuncOptions(2 * e + 1).stride(1).padding(e));
-        f = F::max_pool2d(f, F::MaxPool2dFuncOptions(2 * e + 1).stride(1).padding(e));
+    std::lock_guard<std::mutex> lock(m_unexplained_mutex);
+    if (m_unexplained_step != m_step) {
+        m_unexplained.assign(m_data->frames, torch::Tensor());
+        m_unexplained_step = m_step;
     }
-    // Grown and feathered by 4 px: the residual is lowest at the middle of a flat region that
-    // is wrong all the same, and a hard seam would show.
-    f = F::max_pool2d(f, F::MaxPool2dFuncOptions(9).stride(1).padding(4));
-    f = F::avg_pool2d(F::pad(f, F::PadFuncOptions({4, 4, 4, 4}).mode(torch::kReplicate)),
-                      F::AvgPool2dFuncOptions(9).stride(1));
-    if (!(f > 1e-3).any().item<bool>()) return {};
+    auto f = temporal_unexplained(
+        t, m_data->frames, m_opts.fallback_frames, m_data->to_ref, m_data->static_camera,
+        [&](int s) {
+            auto& u = m_unexplained[s];
+            if (!u.defined())  // an unmeasured frame stays undefined and is asked again
+                u = unexplained_share(m_resid[s].unsqueeze(0), m_opts.fallback_k,
+                                      m_opts.fallback_min);
+            return u;
+        });
+    if (!f.defined() || !(f > 1e-3).any().item<bool>()) return {};
     return f;
 }
 
-void FitEngine::apply_fallback(Layers& L, int t, const torch::Tensor& model_sharp) const {
+torch::Tensor FitEngine::confidence(int t) const {
     auto f = fallback_weight(t);
-    if (!f.defined() || !L.sharp.defined()) return;
+    return f.defined() ? 1.0 - f : torch::ones({1, 1, m_data->height, m_data->width});
+}
+
+torch::Tensor FitEngine::model_weight(int t) const {
+    if (t < 0 || t >= m_data->frames) return {};
+    auto f = fallback_weight(t);
+    const bool keep_focus = m_opts.keep_focus_px > 0;
+    if (!f.defined() && !keep_focus) return {};
+    auto w = f.defined() ? 1.0 - f : torch::ones({1, 1, m_data->height, m_data->width});
+    if (keep_focus) w = w * blur_need(m_data->radius[t], m_opts.keep_focus_px);
+    if (!(w < 1 - 1e-3).any().item<bool>()) return {};
+    return w;
+}
+
+void FitEngine::apply_fallback(Layers& L, int t, const Layers* model) const {
+    auto w = model_weight(t);
+    if (!w.defined() || !L.sharp.defined()) return;
     torch::NoGradGuard g;
     auto in = m_data->input[t].unsqueeze(0);
-    if (model_sharp.defined())
-        L.sharp = (1.0 - f) * model_sharp + f * in + (L.sharp - model_sharp);
-    else
-        L.sharp = (1.0 - f) * L.sharp + f * in;
+    // The layers blend as the plate does, so that α·F + (1 − α)·B stays the plate (the
+    // refocused frames are made from the layers); edits (x − the model's x) stay on top.
+    auto blend = [&](torch::Tensor& x, const torch::Tensor& x_model) {
+        if (!x.defined()) return;
+        const torch::Tensor& base = x_model.defined() ? x_model : x;
+        x = w * base + (1.0 - w) * in + (x - base);
+    };
+    blend(L.sharp, model ? model->sharp : torch::Tensor());
+    blend(L.bg, model ? model->bg : torch::Tensor());
+    blend(L.fg, model ? model->fg : torch::Tensor());
 }
 
 }  // namespace refocus

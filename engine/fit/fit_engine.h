@@ -38,13 +38,17 @@ struct FitOptions {
     // edge fitted as one layer, a mask that misses the subject) — stop pulling on the atlases.
     // Weight 1 / (1 + (e / (c · median_t e))²) of a running residual e; 0 turns it off.
     // A smaller c scores higher on the synth clips; 1.5 keeps most pixels near full weight on
-    // footage they do not represent (docs/method.md, Robust weights and fallback).
+    // footage they do not represent (docs/method.md, Robust weights).
     double robust_c = 1.5;
     int64_t robust_warmup = 60;  // steps before the weights apply (the first fit is blurry)
     // Fallback (FitEngine::fallback_weight): from `fallback_k` x the frame's median residual
     // (and at least `fallback_min`, sRGB) the input shows through, fully at twice that.
-    double fallback_k = 4.0;
-    double fallback_min = 0.04;
+    double fallback_k = 2.0;
+    double fallback_min = 0.02;
+    int fallback_frames = 2;  // smooth in time: grown over ±n frames, then averaged over ±n
+    // Nothing to fix: where no blur of at least this radius (px) reaches a pixel, the output is
+    // the shot (0: off).
+    double keep_focus_px = 0.25;
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;
@@ -110,16 +114,23 @@ class FitEngine {
     // Inference (no gradients). Frame t's layers, its reblur, and the atlases.
     Layers render_frame(int t);
     torch::Tensor reblur(const Layers& layers, const std::vector<int64_t>& frames);  // [B,3,H,W]
-    // Fallback to the shot: where frame t's reblur residual stayed far above what the model
-    // explains elsewhere (a subject the masks missed, ghosted over the wall), the sharp plate
-    // shows the input frame instead of a wrong reconstruction. [1,1,H,W] in [0,1] (1: input), or
-    // undefined when nothing falls back (perframe, a frame not trained yet, a checkpoint
-    // without the running residual).
+    // Never worse than the shot (fit/confidence.h; docs/method.md, Confidence and fallback).
+    // fallback_weight: where frame t's reblur residual stays far above what the model explains
+    // elsewhere (a subject the masks missed, ghosted over the wall; a region no mapping of the
+    // atlas follows), made smooth over the neighbouring frames. [1,1,H,W] in [0,1] (1: the
+    // model does not explain it), or undefined when nothing falls back (perframe, a frame not
+    // trained yet, a checkpoint without the running residual).
     torch::Tensor fallback_weight(int t) const;
-    // L.sharp (frame t, batch of one) blended with the input by fallback_weight(t). When atlas
-    // edits were drawn into L, `model_sharp` is L.sharp before them: the fallback blends that,
-    // and the edits stay on top (paint on the atlas shows in every frame, fallback or not).
-    void apply_fallback(Layers& L, int t, const torch::Tensor& model_sharp = {}) const;
+    // 1 − fallback_weight(t): the confidence pass, [1,1,H,W] (1: the model explains the region).
+    torch::Tensor confidence(int t) const;
+    // The model's share of the output: confidence(t) times the need (0 where no blur reaches
+    // the pixel, fit.keep_focus_px). [1,1,H,W], undefined when it is 1 everywhere.
+    torch::Tensor model_weight(int t) const;
+    // L's sharp frame and layers (frame t, batch of one) blended with the input by
+    // model_weight(t). When atlas edits were drawn into L, `model` is L before them: the
+    // fallback blends that, and the edits stay on top (paint on the atlas shows in every frame,
+    // fallback or not).
+    void apply_fallback(Layers& L, int t, const Layers* model = nullptr) const;
     FitModel& model() { return *m_model; }
     const FitData& data() const { return *m_data; }
     const FitOptions& options() const { return m_opts; }
@@ -162,6 +173,11 @@ class FitEngine {
     std::vector<double> m_base_lr;
     torch::Tensor m_target;  // [T,3,H,W] sRGB-encoded input
     torch::Tensor m_resid;   // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
+    // Each frame's unexplained share (confidence.h) as of step m_unexplained_step: the fallback
+    // of a frame reads its neighbours', and the residual only changes with a step.
+    mutable std::vector<torch::Tensor> m_unexplained;
+    mutable int64_t m_unexplained_step = -1;
+    mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;       // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;    // whether steps take crops (FitOptions::crop_px, and the model
                              // renders the blur's margin)

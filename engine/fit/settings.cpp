@@ -50,6 +50,11 @@ const std::vector<Field<FitOptions>>& fit_fields() {
         {"fit.fallback_k", &O::fallback_k, 0, 1e6,
          "the input shows through from this many times the frame's median residual"},
         {"fit.fallback_min", &O::fallback_min, 0, 1, "... and from at least this residual (sRGB)"},
+        {"fit.fallback_frames", &O::fallback_frames, 0, 12,
+         "the fallback is smooth in time: grown over +-n frames, then averaged over +-n"},
+        {"fit.keep_focus_px", &O::keep_focus_px, 0, 8,
+         "where no blur of at least this radius (px) reaches a pixel, the output is the shot "
+         "(0: off)"},
         {"fit.layer_radius", &O::layer_radius, 0, 1,
          "two layers: each blurred with its own radius, not the visible surface's"},
         {"fit.crop_px", &O::crop_px, 0, 1e5,

@@ -233,6 +233,30 @@ double mean_ssim(const std::vector<Image>& pred, const std::vector<Image>& gt, M
     return s / pred.size();
 }
 
+double masked_psnr(const Image& pred, const Image& gt, const Image& mask, MaskRegion region,
+                   MetricSpace space) {
+    check_same(pred, gt, "masked PSNR");
+    if (mask.width != gt.width || mask.height != gt.height || mask.channels < 1)
+        throw Error("masked PSNR: the mask is " + std::to_string(mask.width) + "x" +
+                    std::to_string(mask.height) + ", the frames " + std::to_string(gt.width) + "x" +
+                    std::to_string(gt.height));
+    const Image p = to_metric_space(pred, space), g = to_metric_space(gt, space);
+    const int nc = std::min(g.channels, 3);
+    double s = 0;
+    size_t n = 0;
+    for (size_t i = 0; i < static_cast<size_t>(g.width) * g.height; ++i) {
+        const bool inside = mask.pixels[i * mask.channels] >= 0.5f;
+        if (inside != (region == MaskRegion::Inside)) continue;
+        for (int c = 0; c < nc; ++c) {
+            const double d = double(p.pixels[i * g.channels + c]) - g.pixels[i * g.channels + c];
+            s += d * d;
+        }
+        n += nc;
+    }
+    if (n == 0) return std::nan("");
+    return psnr_from_mse(s / n, peak_of(space));
+}
+
 std::vector<BandError> error_by_band(const std::vector<Image>& pred, const std::vector<Image>& gt,
                                      const std::vector<double>& edges, MetricSpace space) {
     if (pred.size() != gt.size() || pred.empty())

@@ -42,6 +42,13 @@ double mean_psnr(const std::vector<Image>& pred, const std::vector<Image>& gt,
 double mean_ssim(const std::vector<Image>& pred, const std::vector<Image>& gt,
                  MetricSpace space = MetricSpace::Srgb8);
 
+// PSNR over a region of the frame: the MSE over the R, G, B values of the pixels where `mask`
+// (same width and height; its first channel, values as stored) is >= 0.5 (Inside) or < 0.5
+// (Outside), in `space`. NaN when the region holds no pixel.
+enum class MaskRegion { Inside, Outside };
+double masked_psnr(const Image& pred, const Image& gt, const Image& mask, MaskRegion region,
+                   MetricSpace space = MetricSpace::Srgb8);
+
 // Where the error lies in spatial frequency. Each frame (and the ground truth) in the metric
 // space, each channel less its mean, under a separable Hann window, goes through a 2-D DFT;
 // radial frequency |f| in cycles/px (0 to 0.707) is cut at `edges` (ascending, first 0). Per

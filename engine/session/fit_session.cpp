@@ -108,8 +108,9 @@ ExportPass parse_export_pass(const std::string& n) {
     if (n == "uv") return ExportPass::Uv;
     if (n == "refocus") return ExportPass::Refocus;
     if (n == "depth") return ExportPass::Depth;
+    if (n == "confidence") return ExportPass::Confidence;
     throw Error("unknown pass '" + n +
-                "' (use sharp, reblur, atlas, alpha, coc, uv, refocus, depth or all)");
+                "' (use sharp, reblur, atlas, alpha, coc, uv, refocus, depth, confidence or all)");
 }
 
 const char* export_pass_name(ExportPass p) {
@@ -130,11 +131,40 @@ const char* export_pass_name(ExportPass p) {
             return "refocus";
         case ExportPass::Depth:
             return "depth";
+        case ExportPass::Confidence:
+            return "confidence";
     }
     return "?";
 }
 
+std::string FallbackShare::summary() const {
+    if (frames == 0) return "no frame made from the sharp plate";
+    char buf[256];
+    int n = std::snprintf(buf, sizeof buf,
+                          "the plate is the shot on %.1f%% of pixels the fit cannot explain",
+                          100 * unexplained / frames);
+    if (worst_frame >= 0 && worst_share > 0.001)
+        n += std::snprintf(buf + n, sizeof buf - n, " (most in frame %d: %.1f%%)", worst_frame,
+                           100 * worst_share);
+    std::snprintf(buf + n, sizeof buf - n, ", and on %.1f%% where nothing is blurred",
+                  100 * in_focus / frames);
+    return buf;
+}
+
 namespace {
+// Adds frame t to `s` (see FallbackShare).
+void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
+    auto f = engine.fallback_weight(t);
+    auto w = engine.model_weight(t);
+    const double u = f.defined() ? f.mean().item<double>() : 0.0;
+    // The rest of the shot's share: in focus (w = (1 − f)·need).
+    const double shot = w.defined() ? (1.0 - w).mean().item<double>() : 0.0;
+    s.unexplained += u;
+    s.in_focus += std::max(0.0, shot - u);
+    if (u > s.worst_share) s.worst_share = u, s.worst_frame = t;
+    ++s.frames;
+}
+
 // The project's atlas edits as deltas over the current atlases (undefined: no edit).
 std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const ProjectEdits* e) {
     if (!e || !e->has_edits()) return {};
@@ -201,17 +231,20 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
 
     ClipWriteOptions wo;
     wo.fps = o.fps;
-    wo.srgb_encode = !(pass == ExportPass::Alpha);
+    wo.srgb_encode = !(pass == ExportPass::Alpha || pass == ExportPass::Confidence);
     const ClipFormat cf = parse_clip_format(format == "exr" && data_pass ? "exr32" : format);
     ClipWriter writer(out, name, cf, wo);
     torch::NoGradGuard no_grad;
     for (int t = first; t <= last; ++t) {
         Layers L = engine.render_frame(t);
-        const torch::Tensor model_sharp = L.sharp;
+        const Layers model = L;
         apply_edits(L, d_bg, d_fg);
         // The sharp plate and what is made from it fall back to the shot where the fit failed
         // (the edits stay on top); the reblur and the layers stay the model's.
-        if (pass == ExportPass::Sharp || needs_project) engine.apply_fallback(L, t, model_sharp);
+        if (pass == ExportPass::Sharp || needs_project) {
+            engine.apply_fallback(L, t, &model);
+            if (o.fallback) count_fallback(engine, t, *o.fallback);
+        }
         Image frame;
         if (needs_project) {
             const FrameMaps m = frame_maps(L);
@@ -233,6 +266,10 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
                     break;
                 case ExportPass::Coc:
                     img = d.radius[t].unsqueeze(0);
+                    break;
+                case ExportPass::Confidence:
+                    img = engine.confidence(t)[0];
+                    if (cf == ClipFormat::Mp4) img = img.expand({3, d.height, d.width});
                     break;
                 case ExportPass::Uv: {
                     // (u, v[, u_fg, v_fg]) in [-1, 1]; 2 channels are padded to 3 (RGB layouts).

@@ -30,12 +30,23 @@ void write_fit_settings(Project& project, const FitSettings& s, const FitSnapsho
 std::unique_ptr<FitEngine> open_fitted(const Project& project, PrepareLog& log);
 
 // What `refocus export --what` can write.
-enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv, Refocus, Depth };
-// sharp|reblur|atlas|alpha|coc|uv|refocus|depth
+enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv, Refocus, Depth, Confidence };
+// sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence
 ExportPass parse_export_pass(const std::string& name);
 const char* export_pass_name(ExportPass p);
 
 struct FocusTrack;  // edit/focus.h
+
+// Where an export's plate is the shot rather than the fit (fit/confidence.h), as shares of the
+// exported frames' pixels: `unexplained`, the fit cannot explain the region (it falls back);
+// `in_focus`, nothing is blurred there (the shot needs nothing). Both weighted by how much.
+struct FallbackShare {
+    double unexplained = 0, in_focus = 0;
+    int frames = 0;
+    int worst_frame = -1;         // the frame with the largest unexplained share
+    double worst_share = 0;       // ... and that share
+    std::string summary() const;  // one line for the terminal
+};
 
 struct ExportOptions {
     double fps = 24.0;
@@ -46,6 +57,7 @@ struct ExportOptions {
     const FocusTrack* focus = nullptr;       // focus keys to use instead of the project's section
     int first = 0, last = -1;                // frames first..last (-1: the last frame)
     std::function<bool(int, int)> progress;  // (done, total); false cancels
+    FallbackShare* fallback = nullptr;       // filled by the passes made from the plate
 };
 
 // Writes one pass. Sequences go to `out` (a folder) as <what>_%04d.<ext> numbered from 0 (the
@@ -54,6 +66,8 @@ struct ExportOptions {
 // frame (sharp, reblur, refocus). Refocus: the frames through the preview's CPU twin
 // (render/preview.h) with the focus keys and the depth model; Depth (EXR only, 1 channel): the
 // visible surface's inverse depth, the foreground where alpha > 1/2 (edit/depth.h).
+// Confidence (1 channel): 1 where the fit explains the pixel, 0 where the plate falls back to
+// the shot (FitEngine::confidence).
 // Returns the files written.
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
                                      const std::string& out, const ExportOptions& opts);

@@ -385,6 +385,7 @@ std::optional<FitWorker::ViewFrame> FitWorker::render_view_frame(int t) {
         v.t = t;
         v.maps = frame_maps(*m_engine, t);
         v.radius = tensor_to_image(m_engine->data().radius[t].contiguous());
+        v.confidence = confidence_image(*m_engine, t);
         v.atlas_version = m_engine->snapshot().atlas_version;
         return v;
     } catch (const std::exception& e) {

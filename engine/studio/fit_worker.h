@@ -63,6 +63,9 @@ class FitWorker {
         int t = 0;
         FrameMaps maps;
         Image radius;  // 1 channel, px: the radius the fit uses at this frame
+        // 2 channels: the confidence that the fit explains the pixel, and the fit's share of
+        // the sharp plate there (FitEngine::confidence, model_weight).
+        Image confidence;
         int64_t atlas_version = 0;
     };
     // Frame t is rendered before the next fit step; the future holds nothing when no fit is open

@@ -1,0 +1,65 @@
+// Scoring a fit against ground truth, shared by bench fit and bench corpus (bench_eval.h).
+#include "bench_eval.h"
+
+#include "fit/settings.h"
+
+#include "io/tensor_image.h"
+#include "metrics/metrics.h"
+
+namespace refocus {
+
+EvalRow evaluate(FitEngine& engine, const std::vector<Image>& gt, const std::vector<Image>& input,
+                 EvalFrames* keep) {
+    std::vector<Image> sharp, reblur, g, in;
+    std::vector<int> index;
+    for (int t = 0; t < static_cast<int>(gt.size()); ++t) {
+        if (!engine.frame_done(t)) continue;
+        Layers L = engine.render_frame(t);
+        torch::NoGradGuard ng;
+        reblur.push_back(tensor_to_image(engine.reblur(L, {t})[0].clamp_min(0)));
+        engine.apply_fallback(L, t);
+        sharp.push_back(tensor_to_image(L.sharp[0].clamp_min(0)));
+        g.push_back(gt[t]);
+        in.push_back(input[t]);
+        index.push_back(t);
+    }
+    EvalRow r;
+    FitSnapshot s = engine.snapshot();
+    r.minutes = s.elapsed_s / 60.0;
+    r.step = s.step;
+    r.frames_done = static_cast<int>(sharp.size());
+    if (sharp.empty()) return r;
+    r.psnr = mean_psnr(sharp, g);
+    r.ssim = mean_ssim(sharp, g);
+    r.reblur_psnr = mean_psnr(reblur, in);
+    r.in_psnr = mean_psnr(in, g);
+    r.in_ssim = mean_ssim(in, g);
+    // Consecutive frames only (all of them unless perframe stopped early: it goes in order).
+    int run = 0;
+    while (run < static_cast<int>(gt.size()) && engine.frame_done(run)) ++run;
+    if (run > 1) {
+        std::vector<Image> a(sharp.begin(), sharp.begin() + run), b(g.begin(), g.begin() + run),
+            c(in.begin(), in.begin() + run);
+        r.tpsnr = tpsnr(a, b);
+        r.in_tpsnr = tpsnr(c, b);
+    }
+    if (keep) *keep = EvalFrames{std::move(sharp), std::move(g), std::move(in), std::move(index)};
+    return r;
+}
+
+FitSettings bench_fit_settings(const Args& a, const std::string& preset, double minutes) {
+    FitSettings s;
+    Settings settings;
+    for (const auto& assignment : a.get_all("set")) settings.set_assignment(assignment);
+    use_settings(s, settings);
+    s.fit.preset = preset;
+    s.fit.minutes = minutes;
+    s.fit.iters = a.get_int("iters", 0);
+    s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
+    if (a.has("batch"))
+        s.fit.batch = checked_batch_arg(
+            a.get_int("batch", 0));  // frames per step; left out: the model's choice
+    return s;
+}
+
+}  // namespace refocus

@@ -1,0 +1,92 @@
+#include "fit/confidence.h"
+
+#include <torch/nn/functional.h>
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace refocus {
+
+namespace F = torch::nn::functional;
+
+namespace {
+
+torch::Tensor smoothstep01(const torch::Tensor& x) {
+    auto c = x.clamp(0, 1);
+    return c * c * (3 - 2 * c);
+}
+
+torch::Tensor max_filter(const torch::Tensor& m, int radius) {
+    return F::max_pool2d(m, F::MaxPool2dFuncOptions(2 * radius + 1).stride(1).padding(radius));
+}
+
+}  // namespace
+
+torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min) {
+    if (!resid.defined() || (resid < 0).any().item<bool>()) return {};
+    torch::NoGradGuard g;
+    const double lo = std::max(k * resid.median().item<double>(), min);
+    auto f = smoothstep01((resid - lo) / lo);
+    const int e = 4;
+    f = -max_filter(-f, e);  // opened by 9 px
+    f = max_filter(f, e);
+    f = max_filter(f, 4);  // grown and feathered by 4 px
+    return F::avg_pool2d(F::pad(f, F::PadFuncOptions({4, 4, 4, 4}).mode(torch::kReplicate)),
+                         F::AvgPool2dFuncOptions(9).stride(1));
+}
+
+torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t) {
+    torch::NoGradGuard g;
+    const int64_t H = m_s.size(2), W = m_s.size(3);
+    auto h = torch::matmul(torch::linalg_inv(to_ref[s]), to_ref[t]).to(torch::kFloat32);  // t → s
+    auto ys = torch::arange(H, torch::kFloat32).view({H, 1}).expand({H, W});
+    auto xs = torch::arange(W, torch::kFloat32).view({1, W}).expand({H, W});
+    auto p = torch::stack({xs, ys, torch::ones_like(xs)}, -1).view({-1, 3});  // [HW,3]
+    auto q = torch::matmul(p, h.t());
+    auto w = q.narrow(1, 2, 1).clamp_min(1e-6);
+    auto gx = (2 * q.narrow(1, 0, 1) / w + 1) / W - 1;
+    auto gy = (2 * q.narrow(1, 1, 1) / w + 1) / H - 1;
+    auto grid = torch::cat({gx, gy}, 1).view({1, H, W, 2});
+    return F::grid_sample(m_s, grid,
+                          F::GridSampleFuncOptions()
+                              .mode(torch::kBilinear)
+                              .padding_mode(torch::kBorder)
+                              .align_corners(false));
+}
+
+torch::Tensor temporal_unexplained(int t, int frames, int window, const torch::Tensor& to_ref,
+                                   bool static_camera,
+                                   const std::function<torch::Tensor(int)>& u_of) {
+    torch::NoGradGuard g;
+    auto own = u_of(t);
+    if (!own.defined() || window <= 0) return own;
+    // The frame's own share, raised toward its neighbours' mean (drawn into frame t): a frame
+    // keeps its own fallback in full, and a region that falls back in the frames around it
+    // fades in and out instead of switching on and off.
+    torch::Tensor sum = own;
+    int n = 1;
+    for (int s = std::max(0, t - window); s <= std::min(frames - 1, t + window); ++s) {
+        if (s == t) continue;
+        auto m = u_of(s);
+        if (!m.defined()) continue;
+        if (!static_camera && to_ref.defined()) m = warp_frame_map(m, to_ref, s, t);
+        sum = sum + m;
+        ++n;
+    }
+    return torch::maximum(own, sum / n);
+}
+
+torch::Tensor blur_need(const torch::Tensor& radius, double focus_px) {
+    torch::NoGradGuard g;
+    auto r = radius.view({1, 1, radius.size(-2), radius.size(-1)}).to(torch::kFloat32);
+    if (!(focus_px > 0)) return torch::ones_like(r);
+    // Cone dilation max_q (r(q) − |p − q|_∞): as many 3x3 steps as the widest radius.
+    const int steps = std::min(64, static_cast<int>(std::ceil(r.max().item<double>())));
+    auto reach = r;
+    for (int i = 0; i < steps; ++i) reach = torch::maximum(reach, max_filter(reach, 1) - 1.0);
+    return smoothstep01((reach - focus_px) / focus_px);
+}
+
+}  // namespace refocus

@@ -1,0 +1,166 @@
+// `refocus bench corpus` on a tiny corpus of two synth clips (one dev, one val): the table and
+// its CSV, the split filter, and bad corpora refused naming the file.
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <sstream>
+
+#include "test_util.h"
+#include "util/fs.h"
+
+using namespace refocus;
+using namespace refocus::test;
+
+namespace {
+
+std::vector<std::vector<std::string>> read_csv(const fs::path& path) {
+    std::ifstream in(path);
+    REQUIRE(in.good());
+    std::vector<std::vector<std::string>> rows;
+    for (std::string line; std::getline(in, line);) {
+        if (line.empty()) continue;
+        std::vector<std::string> f;
+        std::stringstream ss(line);
+        for (std::string x; std::getline(ss, x, ',');) f.push_back(x);
+        if (line.back() == ',') f.push_back("");
+        rows.push_back(f);
+    }
+    return rows;
+}
+
+// Mean over frames of the PSNR of input_%04d.png against sharp_%04d.png, from the 8-bit codes
+// (OpenCV, not the engine's readers).
+double input_psnr_from_pngs(const fs::path& clip, int frames) {
+    double sum = 0;
+    for (int t = 0; t < frames; ++t) {
+        char in[32], gt[32];
+        std::snprintf(in, sizeof in, "input_%04d.png", t);
+        std::snprintf(gt, sizeof gt, "sharp_%04d.png", t);
+        const cv::Mat a = cv::imread((clip / in).string(), cv::IMREAD_COLOR);
+        const cv::Mat b = cv::imread((clip / gt).string(), cv::IMREAD_COLOR);
+        REQUIRE(!a.empty());
+        REQUIRE(a.size() == b.size());
+        double se = 0;
+        for (size_t i = 0; i < a.total() * 3; ++i) {
+            const double d = double(a.data[i]) - b.data[i];
+            se += d * d;
+        }
+        sum += 10 * std::log10(255.0 * 255.0 / (se / (a.total() * 3)));
+    }
+    return sum / frames;
+}
+
+void make_clip(const fs::path& dir, const std::string& scene, const std::string& split) {
+    RunResult r = cli("synth --scene " + scene + " -o '" + dir.string() +
+                      "' --size 64x36 --frames 6 --seed 3");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    nlohmann::json j = nlohmann::json::parse(read_text_file(dir / "clip.json"));
+    j["split"] = split;
+    write_file_atomic(dir / "clip.json", j.dump(2));
+}
+
+}  // namespace
+
+TEST_CASE("bench corpus: one row per clip and a mean, the CSV, --split, bad corpora refused") {
+    const fs::path root = scratch_dir("bench_corpus"), corpus = root / "corpus";
+    make_clip(corpus / "rack", "rack", "dev");
+    make_clip(corpus / "tripod", "tripod", "val");
+    const fs::path csv = root / "all.csv";
+    RunResult r = cli("bench corpus '" + corpus.string() + "' --split all --iters 20 --csv '" +
+                      csv.string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    CHECK(r.output.find("[1/2] rack") != std::string::npos);  // progress, per clip
+    CHECK(r.output.find("[2/2] tripod") != std::string::npos);
+    CHECK(r.output.find("targets met by") != std::string::npos);
+
+    auto rows = read_csv(csv);
+    REQUIRE(rows.size() == 4);                   // header, rack, tripod, mean
+    const std::vector<std::string> h = rows[0];  // a copy: rows is read again below
+    auto col = [&](const std::string& name) {
+        const auto it = std::find(h.begin(), h.end(), name);
+        REQUIRE(it != h.end());
+        return static_cast<size_t>(it - h.begin());
+    };
+    CHECK(rows[1][0] == "rack");
+    CHECK(rows[1][1] == "dev");
+    CHECK(rows[2][0] == "tripod");
+    CHECK(rows[2][1] == "val");
+    CHECK(rows[3][0] == "mean");
+    for (size_t i = 1; i < rows.size(); ++i) {
+        REQUIRE(rows[i].size() == h.size());
+        for (const char* name :
+             {"frames", "frames_done", "in_psnr", "out_psnr", "gain_psnr", "in_ssim", "out_ssim",
+              "in_tpsnr", "out_tpsnr", "worst_gain", "in_psnr_inside", "out_psnr_inside",
+              "in_psnr_outside", "out_psnr_outside", "steps", "fit_s", "target_gain"}) {
+            INFO(name << " in row " << i);
+            CHECK(std::isfinite(std::stod(rows[i][col(name)])));
+        }
+    }
+    CHECK(std::stoi(rows[1][col("steps")]) == 20);
+    CHECK(std::stoi(rows[1][col("frames")]) == 6);
+    CHECK(std::stoi(rows[1][col("worst_frame")]) >= 0);
+    // The input's PSNR against the PNGs, computed here from their 8-bit codes.
+    CHECK(std::abs(std::stod(rows[1][col("in_psnr")]) - input_psnr_from_pngs(corpus / "rack", 6)) <
+          0.01);
+    // The mean row: the clips' mean.
+    CHECK(std::stod(rows[3][col("in_psnr")]) ==
+          doctest::Approx(
+              (std::stod(rows[1][col("in_psnr")]) + std::stod(rows[2][col("in_psnr")])) / 2)
+              .epsilon(1e-4));
+
+    // --split val: only the val clip; the CSV goes to <dir>/bench_val_fast.csv by default.
+    // Without its alpha frames the clip has no inside/outside split: empty CSV fields.
+    for (int t = 0; t < 6; ++t) {
+        char name[32];
+        std::snprintf(name, sizeof name, "alpha_%04d.png", t);
+        fs::remove(corpus / "tripod" / name);
+    }
+    r = cli("bench corpus '" + corpus.string() + "' --split val --iters 3");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    CHECK(r.output.find("[1/1] tripod") != std::string::npos);
+    CHECK(r.output.find("rack (dev") == std::string::npos);  // neither fitted
+    CHECK(r.output.find("\nrack ") == std::string::npos);    // nor in the table
+    rows = read_csv(corpus / "bench_val_fast.csv");
+    REQUIRE(rows.size() == 3);
+    CHECK(rows[1][0] == "tripod");
+    CHECK(rows[1][col("in_psnr_inside")].empty());
+    CHECK(rows[1][col("out_psnr_outside")].empty());
+    CHECK(std::isfinite(std::stod(rows[1][col("out_psnr")])));
+
+    // Bad corpora: each refused before any fit, naming the file.
+    const fs::path empty = root / "empty";
+    fs::create_directories(empty);
+    r = cli("bench corpus '" + empty.string() + "' --iters 2");
+    CHECK(r.code != 0);
+    CHECK(r.output.find(empty.string() + ": no clip folders") != std::string::npos);
+
+    const fs::path devonly = root / "devonly";
+    fs::create_directories(devonly);
+    fs::copy(corpus / "rack", devonly / "rack");
+    r = cli("bench corpus '" + devonly.string() + "' --split val --iters 2");
+    CHECK(r.code != 0);
+    CHECK(r.output.find(devonly.string() + ": no clips in split 'val'") != std::string::npos);
+
+    fs::remove(devonly / "rack" / "sharp_0005.png");
+    r = cli("bench corpus '" + devonly.string() + "' --iters 2");
+    CHECK(r.code != 0);
+    CHECK(r.output.find((devonly / "rack" / "sharp_%04d.png").string() +
+                        ": 5 frames, but 6 input frames") != std::string::npos);
+
+    for (int t = 0; t < 5; ++t) {
+        char name[32];
+        std::snprintf(name, sizeof name, "sharp_%04d.png", t);
+        fs::remove(devonly / "rack" / name);
+    }
+    r = cli("bench corpus '" + devonly.string() + "' --iters 2");
+    CHECK(r.code != 0);
+    CHECK(r.output.find((devonly / "rack" / "sharp_%04d.png").string() +
+                        ": no ground-truth frames") != std::string::npos);
+}

@@ -1,0 +1,130 @@
+// Never worse than the shot: the confidence maps (fit/confidence.h) and the fallback they drive.
+#include <torch/torch.h>
+
+#include <doctest/doctest.h>
+
+#include <cstdio>
+#include <vector>
+
+#include "fit/confidence.h"
+#include "io/clip.h"
+#include "io/image_file.h"
+#include "metrics/metrics.h"
+#include "test_util.h"
+
+using namespace refocus;
+
+namespace {
+
+double px_at(const torch::Tensor& m, int y, int x) {
+    return m[0][0][y][x].item<double>();
+}
+
+}  // namespace
+
+TEST_CASE("an isolated bad frame falls back fully and its neighbours fade toward it") {
+    const int T = 11, H = 8, W = 8;
+    auto to_ref = torch::eye(3, torch::kFloat64).expand({T, 3, 3}).contiguous();
+    auto u_of = [&](int s) {
+        return s == 5 ? torch::ones({1, 1, H, W}) : torch::zeros({1, 1, H, W});
+    };
+    std::vector<double> h;
+    for (int t = 0; t < T; ++t)
+        h.push_back(px_at(temporal_unexplained(t, T, 2, to_ref, true, u_of), 4, 4));
+    CHECK(h[5] == doctest::Approx(1.0));
+    for (int t : {3, 4, 6, 7}) CHECK(h[t] == doctest::Approx(0.2));
+    for (int t : {0, 1, 2, 8, 9, 10}) CHECK(h[t] == doctest::Approx(0.0));
+    // Near the clip's ends the mean is over the frames there are.
+    auto u0 = [&](int s) { return torch::full({1, 1, H, W}, s == 0 ? 1.0 : 0.0); };
+    CHECK(px_at(temporal_unexplained(1, T, 2, to_ref, true, u0), 0, 0) == doctest::Approx(0.25));
+    // A frame not measured yet gives nothing; window 0 is the frame's own share.
+    auto none = [&](int) { return torch::Tensor(); };
+    CHECK_FALSE(temporal_unexplained(3, T, 2, to_ref, true, none).defined());
+    CHECK(px_at(temporal_unexplained(4, T, 0, to_ref, true, u_of), 0, 0) == 0.0);
+}
+
+TEST_CASE("a frame's map is drawn in another frame's pixels through the homographies") {
+    const int H = 10, W = 16;
+    // Frame 1 sees the reference shifted: its pixel x is the reference's x + 3.
+    auto to_ref = torch::eye(3, torch::kFloat64).repeat({2, 1, 1});
+    to_ref[1][0][2] = 3.0;
+    auto m1 = torch::zeros({1, 1, H, W});
+    m1[0][0][4][8] = 1.0;  // reference point (11, 4)
+    auto in0 = warp_frame_map(m1, to_ref, 1, 0);
+    CHECK(px_at(in0, 4, 11) == doctest::Approx(1.0));
+    CHECK(px_at(in0, 4, 8) == doctest::Approx(0.0));
+}
+
+TEST_CASE("the need to fix: zero where no blur reaches, one within a blurred region's spill") {
+    const int H = 40, W = 40;
+    auto r = torch::zeros({H, W});
+    r.narrow(0, 15, 10).narrow(1, 15, 10).fill_(6.0);  // a blurred square, 6 px
+    auto need = blur_need(r, 0.5);
+    CHECK(px_at(need, 20, 20) == doctest::Approx(1.0));
+    CHECK(px_at(need, 20, 28) == doctest::Approx(1.0));  // 4 px outside: its blur spills there
+    CHECK(px_at(need, 20, 38) == doctest::Approx(0.0));  // 14 px outside: untouched
+    CHECK(px_at(need, 2, 2) == doctest::Approx(0.0));
+    CHECK(blur_need(r, 0).min().item<double>() == 1.0);  // off
+}
+
+TEST_CASE("the unexplained share: a region far above the frame's typical residual") {
+    const int H = 48, W = 48;
+    auto e = torch::full({1, 1, H, W}, 0.01);
+    e[0][0].narrow(0, 16, 16).narrow(1, 16, 16).fill_(0.2);  // a 16 px region unexplained
+    e[0][0][4][4] = 0.5;                                     // one hot pixel: noise, opened away
+    auto u = unexplained_share(e, 4.0, 0.04);
+    CHECK(px_at(u, 24, 24) == doctest::Approx(1.0));
+    CHECK(px_at(u, 4, 4) == doctest::Approx(0.0));
+    CHECK(px_at(u, 40, 40) == doctest::Approx(0.0));
+    CHECK_FALSE(unexplained_share(torch::full({1, 1, 4, 4}, -1.0), 4, 0.04).defined());
+}
+
+TEST_CASE("a region whose radius is wrong falls back to the shot; the rest keeps the fit") {
+    // Rack focus; the right half of each frame's radius map is another frame's (the focus pull
+    // run backwards): the shared atlas cannot explain both halves' frames alike.
+    test::TinyClip c = test::make_tiny("confidence_wrong_radius", "rack", "160x90");
+    const int T = 8, W = 160, H = 90;
+    const auto coc = read_all_frames((c.clip / "coc_%04d.exr").string());
+    REQUIRE(static_cast<int>(coc.size()) == T);
+    const fs::path wrong = c.dir / "wrong";
+    fs::create_directories(wrong);
+    Image half(W, H, 1, 0.0f);  // 1 on the right half: the wrong region
+    for (int y = 0; y < H; ++y)
+        for (int x = W / 2; x < W; ++x) half.pixels[y * W + x] = 1.0f;
+    for (int t = 0; t < T; ++t) {
+        Image m = coc[t];
+        for (int y = 0; y < H; ++y)
+            for (int x = W / 2; x < W; ++x) m.pixels[y * W + x] = coc[T - 1 - t].pixels[y * W + x];
+        char name[32];
+        std::snprintf(name, sizeof name, "coc_%04d.exr", t);
+        write_image_file((wrong / name).string(), m, PixelFormat::ExrFloat, false);
+    }
+    auto r = test::cli("fit '" + c.project.string() + "' --iters 200 --coc '" +
+                       (wrong / "coc_%04d.exr").string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    const auto sharp = test::export_sharp(c, "sharp");
+    r = test::cli("export '" + c.project.string() + "' --what confidence --format exr32 --out '" +
+                  (c.dir / "conf").string() + "'");
+    REQUIRE(r.code == 0);
+    const auto conf = read_all_frames((c.dir / "conf/confidence_%04d.exr").string());
+    const auto gt = read_all_frames((c.clip / "sharp_%04d.png").string());
+    const auto input = read_all_frames((c.clip / "input_%04d.png").string());
+    double out_wrong = 0, in_wrong = 0, out_right = 0, in_right = 0, k_wrong = 0, k_right = 0;
+    for (int t = 0; t < T; ++t) {
+        out_wrong += masked_psnr(sharp[t], gt[t], half, MaskRegion::Inside) / T;
+        in_wrong += masked_psnr(input[t], gt[t], half, MaskRegion::Inside) / T;
+        out_right += masked_psnr(sharp[t], gt[t], half, MaskRegion::Outside) / T;
+        in_right += masked_psnr(input[t], gt[t], half, MaskRegion::Outside) / T;
+        for (int y = 0; y < H; ++y)
+            for (int x = 0; x < W; ++x)
+                (x < W / 2 ? k_right : k_wrong) += conf[t].pixels[y * W + x] / (T * H * W / 2.0);
+    }
+    MESSAGE("wrong radius half: input " << in_wrong << " dB, output " << out_wrong
+                                        << " dB, confidence " << k_wrong);
+    MESSAGE("true radius half: input " << in_right << " dB, output " << out_right
+                                       << " dB, confidence " << k_right);
+    CHECK(out_wrong > in_wrong - 0.5);  // never (much) worse than the shot
+    CHECK(out_right > in_right + 1.0);  // where the model is right, it still fixes the shot
+    CHECK(k_wrong < k_right - 0.2);     // and the confidence pass says where
+}
