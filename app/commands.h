@@ -13,5 +13,6 @@ int bench_fit(int argc, char** argv);     // refocus bench fit (app/bench_fit.cp
 int bench_kernel(int argc, char** argv);  // refocus bench kernel (app/bench_kernel.cpp)
 int bench_bound(int argc, char** argv);   // refocus bench bound (app/bench_bound.cpp)
 int bench_motion(int argc, char** argv);  // refocus bench motion (app/bench_motion.cpp)
+int bench_scale(int argc, char** argv);   // refocus bench scale (app/bench_scale.cpp)
 int bench_corpus(int argc, char** argv);  // refocus bench corpus (app/bench/bench_corpus.cpp)
 }  // namespace refocus

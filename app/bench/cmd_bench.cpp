@@ -214,6 +214,12 @@ const Bench kBenches[] = {
      "bound --clip <synth-dir> [--sharp <dir>] [--lambdas 1e-6,1e-5] [--iters 300]\n"
      "             the wall's best 1x atlas and best linear (Wiener) deconvolution, given the "
      "truth"},
+    {"scale", bench_scale,
+     "scale [--scene rack] [--sizes 320x180,640x360,1280x720,1920x1080] [--frames 30]\n"
+     "             [--max-minutes 10] [--crop-px 320] [--work <dir>] [--set name=value]...\n"
+     "             cost against frame size: ingest, preparation, a step on whole frames and on "
+     "crops,\n"
+     "             time to the input's sharp PSNR + 3 dB (true radius), peak memory"},
 };
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <cstdlib>
 
 #include "model/atlas_geometry.h"
+#include "fit/crops.h"
 #include "fit/losses.h"
 #include "ops/lens_blur.h"
 
@@ -466,14 +467,33 @@ torch::Tensor FastModel::minified(const torch::Tensor& fg,
 }
 
 Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad) {
+    const std::vector<int64_t> corner(frames.size(), -pad);
+    return render_region(frames, corner, corner, m_data.height + 2 * pad, m_data.width + 2 * pad,
+                         pad);
+}
+
+Layers FastModel::render_window(const std::vector<int64_t>& frames, const std::vector<int64_t>& x0,
+                                const std::vector<int64_t>& y0, int64_t h, int64_t w) {
+    check_windows("fast model", int64_t(frames.size()), m_data.height, m_data.width, m_opts.pad, x0,
+                  y0, h, w);
+    return render_region(frames, x0, y0, h, w, -1);
+}
+
+Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::vector<int64_t>& x0,
+                                const std::vector<int64_t>& y0, int64_t h, int64_t w, int64_t pad) {
     const int64_t B = frames.size(), H = m_data.height, W = m_data.width;
     Layers out;
+    out.x0 = x0;
+    out.y0 = y0;
+    auto coords = [&](const Atlas& a) {
+        return pad >= 0 ? map_coords(a, frames, pad) : map_coords_window(a, frames, x0, y0, h, w);
+    };
     // The composed atlases are kept for priors() of the same step: composing costs an upsample of
     // each coarse level forward and backward.
     const bool training = torch::GradMode::is_enabled();
     auto bg = compose(m_bg);
     m_composed_bg = training ? bg : torch::Tensor();
-    out.uv_bg = to_grid(m_bg, map_coords(m_bg, frames, pad));
+    out.uv_bg = to_grid(m_bg, coords(m_bg));
     out.bg = sample_bicubic(bg.expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
     if (!m_two_layers) {
         out.sharp = out.bg;
@@ -481,7 +501,7 @@ Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad)
     }
     auto fg = compose(m_fg);
     m_composed_fg = training ? fg : torch::Tensor();
-    out.uv_fg = to_grid(m_fg, map_coords(m_fg, frames, pad));
+    out.uv_fg = to_grid(m_fg, coords(m_fg));
     out.fg = sample_bicubic(minified(fg, frames), out.uv_fg);
     auto idx = torch::tensor(frames, torch::kLong);
     // The shared matte through the foreground mapping (its grid [-1,1] spans the atlas, which
@@ -491,8 +511,10 @@ Layers FastModel::render_padded(const std::vector<int64_t>& frames, int64_t pad)
                                      .mode(torch::kBilinear)
                                      .padding_mode(torch::kBorder)
                                      .align_corners(false));
-    out.alpha =
-        torch::sigmoid(shared + pad_edges(upsample(m_alpha_logit.index_select(0, idx), H, W), pad));
+    auto residual = m_alpha_logit.index_select(0, idx);
+    residual = pad >= 0 ? pad_edges(upsample(residual, H, W), pad)
+                        : upsample_window(residual, H, W, x0, y0, h, w, false);
+    out.alpha = torch::sigmoid(shared + residual);
     out.sharp = out.alpha * out.fg + (1.0 - out.alpha) * out.bg;  // paper eq. 1
     return out;
 }
@@ -502,10 +524,16 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     auto bg = m_composed_bg.defined() ? m_composed_bg : compose(m_bg);
     // A layer with a deblurring path takes deblur_tv times the TV: its detail is what TV flattens.
     auto tv_factor = [&](const Atlas& a) { return a.deblur.defined() ? m_opts.deblur_tv : 1.0; };
-    auto tv = tv_factor(m_bg) * tv_l1(bg, m_bg.tv_weight);
+    // Over windows (the crop step), each prior covers what the windows read only.
+    const bool whole = covers_frames(layers);
+    auto atlas_tv = [&](const Atlas& a, const torch::Tensor& composed, const torch::Tensor& uv) {
+        return whole ? tv_l1(composed, a.tv_weight) : window_tv(a, composed, uv);
+    };
+    auto tv = tv_factor(m_bg) * atlas_tv(m_bg, bg, layers.uv_bg);
     if (m_two_layers)
-        tv = tv + tv_factor(m_fg) * tv_l1(m_composed_fg.defined() ? m_composed_fg : compose(m_fg),
-                                          m_fg.tv_weight);
+        tv = tv + tv_factor(m_fg) *
+                      atlas_tv(m_fg, m_composed_fg.defined() ? m_composed_fg : compose(m_fg),
+                               layers.uv_fg);
     m_composed_bg = m_composed_fg = torch::Tensor();
     // TV in frame px: a 2x atlas's neighbours differ by half as much, so the weight scales with
     // the atlas (docs/method.md, Model).
@@ -515,10 +543,12 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     torch::Tensor warp_reg = torch::zeros({});
     for (Atlas* a : {&m_bg, &m_fg}) {
         if (!a->warp.requires_grad()) continue;
+        if (!whole) {
+            warp_reg = warp_reg + window_warp(*a, layers, frames);
+            continue;
+        }
         auto w = a->warp.index_select(0, idx);
-        auto dx = w.narrow(3, 1, w.size(3) - 1) - w.narrow(3, 0, w.size(3) - 1);
-        auto dy = w.narrow(2, 1, w.size(2) - 1) - w.narrow(2, 0, w.size(2) - 1);
-        warp_reg = warp_reg + dx.pow(2).mean() + dy.pow(2).mean() + 1e-3 * w.pow(2).mean();
+        warp_reg = warp_reg + warp_smoothness(w);
     }
     total = total + m_opts.w_warp * warp_reg;
     terms["warp"] = warp_reg.item<double>();
@@ -547,15 +577,12 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
         // Mask bootstrap (Layered Neural Atlases §3.3): pull α toward the masks early, then let
         // the reconstruction decide the soft edge.
         const double decay = std::pow(0.5, double(step) / m_opts.bootstrap_halflife);
-        const int64_t pad = (layers.alpha.size(3) - m_data.width) / 2;
-        auto alpha = layers.alpha.narrow(2, pad, m_data.height).narrow(3, pad, m_data.width);
-        auto boot =
-            ((alpha - m_data.mask.index_select(0, idx)).abs() * m_boot_weight.index_select(0, idx))
-                .mean();
+        auto boot = bootstrap_l1(layers, frames);
         total = total + m_opts.w_bootstrap * decay * boot;
         terms["bootstrap"] = boot.item<double>();
         // The residual stays small: what the frames share lives in the shared matte.
-        auto res = m_alpha_logit.index_select(0, idx).abs().mean();
+        auto res = whole ? m_alpha_logit.index_select(0, idx).abs().mean()
+                         : window_alpha_residual(layers, frames);
         total = total + m_opts.w_alpha_residual * res;
         terms["alpha_residual"] = res.item<double>();
     }

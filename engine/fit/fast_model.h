@@ -81,6 +81,9 @@ class FastModel : public FitModel {
     int preferred_batch() const override;
     std::string preferred_batch_reason() const override;
     Layers render_padded(const std::vector<int64_t>& frames, int64_t pad) override;
+    // Samples the atlases, the warps and the matte at the windows' pixels only.
+    Layers render_window(const std::vector<int64_t>& frames, const std::vector<int64_t>& x0,
+                         const std::vector<int64_t>& y0, int64_t h, int64_t w) override;
     torch::Tensor priors(const Layers& layers, const std::vector<int64_t>& frames, int64_t step,
                          LossTerms& terms) override;
     torch::Tensor atlas_bg() override;
@@ -110,7 +113,31 @@ class FastModel : public FitModel {
     // Atlas pixel coordinates of frame pixels, `pad` px beyond the edges: [B,H+2pad,W+2pad,2].
     torch::Tensor map_coords(const Atlas& a, const std::vector<int64_t>& frames,
                              int64_t pad = 0) const;
+    // The same over windows of h × w px at (x0[b], y0[b]) (render_window): [B,h,w,2].
+    torch::Tensor map_coords_window(const Atlas& a, const std::vector<int64_t>& frames,
+                                    const std::vector<int64_t>& x0, const std::vector<int64_t>& y0,
+                                    int64_t h, int64_t w) const;
     torch::Tensor to_grid(const Atlas& a, const torch::Tensor& px) const;  // → [-1,1]
+    // Frames over windows (render_window), or with `pad` ≥ 0 the frames padded by `pad` px,
+    // sampled over the whole padded frame (render_padded).
+    Layers render_region(const std::vector<int64_t>& frames, const std::vector<int64_t>& x0,
+                         const std::vector<int64_t>& y0, int64_t h, int64_t w, int64_t pad);
+    // Whether `layers` cover whole frames (render_padded), not windows (render_window).
+    bool covers_frames(const Layers& layers) const;
+    // The mask bootstrap's L1 over the part of the rendered layers that lies in the frame.
+    torch::Tensor bootstrap_l1(const Layers& layers, const std::vector<int64_t>& frames) const;
+    // Over windows, each prior covers the part of an atlas or a per-frame grid that the windows
+    // read, as a mean like the whole frames' (fast_model_window.cpp): one that reached further
+    // would move parameters no loss pulls on this step by Adam's full step (docs/method.md,
+    // Crops). `uv` [B,h,w,2] is the windows' atlas grid.
+    torch::Tensor window_tv(const Atlas& a, const torch::Tensor& composed,
+                            const torch::Tensor& uv) const;
+    torch::Tensor window_warp(const Atlas& a, const Layers& layers,
+                              const std::vector<int64_t>& frames) const;
+    torch::Tensor window_alpha_residual(const Layers& layers,
+                                        const std::vector<int64_t>& frames) const;
+    // Smoothness of residual warps [B,2,gh,gw] (and a little of their size).
+    static torch::Tensor warp_smoothness(const torch::Tensor& w);
     void init_levels(Atlas& a, const torch::Tensor& fused);
     // Frames (or `what`, [T,C,H,W] in frame px) fused into the atlas, sharpest-weighted.
     torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight,

@@ -8,6 +8,7 @@
 #include <filesystem>
 
 #include "fit/confidence.h"
+#include "fit/lazy_adam.h"
 #include "fit/losses.h"
 #include "radius/stack_coc.h"
 #include "io/tensor_image.h"
@@ -36,6 +37,9 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (m_opts.minutes <= 0 && m_opts.iters <= 0)
         throw Error("fit: give a budget (--minutes M or --iters N)");
     if (m_opts.batch < 0) checked_batch_arg(m_opts.batch);  // 0: the model's choice
+    if (m_opts.crop_px != 0 && m_opts.crop_px < 32)
+        throw Error("fit: fit.crop_px must be 0 (whole frames) or at least 32 px (got " +
+                    std::to_string(m_opts.crop_px) + ")");
     if (!torch::isfinite(m_data->input).all().item<bool>())
         throw Error("fit: the input frames contain NaN/Inf");
     if (!torch::isfinite(m_data->radius).all().item<bool>() ||
@@ -80,6 +84,21 @@ void FitEngine::build_model() {
         m_radius_fg_pad = padded(m_data->layer_radius(true));
         m_radius_bg_pad = padded(m_data->layer_radius(false));
     }
+    // A crop is blurred with the margin the model renders around it (FitModel::render_window),
+    // as a whole frame is: a model that renders none beyond the frame (paper) takes whole
+    // frames, unless nothing is blurred (docs/method.md, Crops).
+    const bool smaller =
+        m_opts.crop_px > 0 && (m_data->width > m_opts.crop_px || m_data->height > m_opts.crop_px);
+    const bool margin =
+        m_pad > 0 || lens_blur_support(m_data->radius.max().item<double>(), m_data->blur) == 0;
+    m_crops = smaller && margin && !m_model->steps_itself();
+    if (m_crops)
+        m_model->notes.push_back("fit: a step takes crops of about " +
+                                 std::to_string(m_opts.crop_px) +
+                                 " px a side of each frame (fit.crop_px; 0: whole frames)");
+    else if (smaller && !m_model->steps_itself())
+        m_model->notes.push_back("fit: whole frames a step: the " + m_opts.preset +
+                                 " model renders no margin beyond the frame, which crops need");
     make_optimizer();
 }
 
@@ -98,7 +117,11 @@ void FitEngine::make_optimizer() {
         groups.emplace_back(g.params, std::make_unique<torch::optim::AdamOptions>(g.lr));
         m_base_lr.push_back(g.lr);
     }
-    m_optim = std::make_unique<torch::optim::Adam>(groups, torch::optim::AdamOptions(1e-3));
+    // Crops train part of each atlas a step: the others must not drift (lazy_adam.h).
+    if (m_crops)
+        m_optim = std::make_unique<LazyAdam>(groups, torch::optim::AdamOptions(1e-3));
+    else
+        m_optim = std::make_unique<torch::optim::Adam>(groups, torch::optim::AdamOptions(1e-3));
 }
 
 double FitEngine::budget_fraction() const {
@@ -140,33 +163,122 @@ torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& fra
     std::vector<torch::Tensor> out;
     for (size_t b = 0; b < frames.size(); ++b) {
         const int64_t t = frames[b];
-        if (!L.fg.defined()) {
-            auto r = pad ? m_radius_pad[t] : m_data->radius[t];
-            out.push_back(lens_blur(L.sharp[b], r, m_data->blur));  // paper eq. 3
-            continue;
-        }
-        // Layered reblur L(α·F) + (1 − L(α))·L(B): α·F and α scatter with the subject's radius,
-        // B with the wall's (the same map for both unless split_radius_by_layer gave two, then
-        // two passes).
-        auto a = L.alpha[b];
-        auto rf = pad ? m_radius_fg_pad[t] : m_data->layer_radius(true)[t];
-        auto rb = pad ? m_radius_bg_pad[t] : m_data->layer_radius(false)[t];
-        if (m_data->radius_fg.defined()) {
-            auto blf = lens_blur(torch::cat({a * L.fg[b], a}, 0), rf, m_data->blur);
-            auto blb = lens_blur(L.bg[b], rb, m_data->blur);
-            out.push_back(blf.narrow(0, 0, 3) + (1.0 - blf.narrow(0, 3, 1)) * blb);
-            continue;
-        }
-        auto bl = lens_blur(torch::cat({a * L.fg[b], a, L.bg[b]}, 0), rf,
-                            m_data->blur);  // one 7-channel pass
-        out.push_back(bl.narrow(0, 0, 3) + (1.0 - bl.narrow(0, 3, 1)) * bl.narrow(0, 4, 3));
+        out.push_back(reblur_frame(L, b, t, pad ? m_radius_pad[t] : m_data->radius[t],
+                                   pad ? m_radius_fg_pad[t] : m_data->layer_radius(true)[t],
+                                   pad ? m_radius_bg_pad[t] : m_data->layer_radius(false)[t]));
     }
     auto rb = torch::stack(out);
     return pad ? rb.narrow(2, pad, m_data->height).narrow(3, pad, m_data->width) : rb;
 }
 
+torch::Tensor FitEngine::reblur_frame(const Layers& L, size_t b, int64_t t, const torch::Tensor& r,
+                                      const torch::Tensor& rf, const torch::Tensor& rb) const {
+    if (!L.fg.defined()) return lens_blur(L.sharp[b], r, m_data->blur);  // paper eq. 3
+    // Layered reblur L(α·F) + (1 − L(α))·L(B): α·F and α scatter with the subject's radius,
+    // B with the wall's (the same map for both unless split_radius_by_layer gave two, then
+    // two passes).
+    auto a = L.alpha[b];
+    if (m_data->radius_fg.defined()) {
+        auto blf = lens_blur(torch::cat({a * L.fg[b], a}, 0), rf, m_data->blur);
+        auto blb = lens_blur(L.bg[b], rb, m_data->blur);
+        return blf.narrow(0, 0, 3) + (1.0 - blf.narrow(0, 3, 1)) * blb;
+    }
+    auto bl = lens_blur(torch::cat({a * L.fg[b], a, L.bg[b]}, 0), rf,
+                        m_data->blur);  // one 7-channel pass
+    return bl.narrow(0, 0, 3) + (1.0 - bl.narrow(0, 3, 1)) * bl.narrow(0, 4, 3);
+}
+
+Crops FitEngine::step_crops(const std::vector<int64_t>& frames) const {
+    if (!m_crops) {
+        Crops whole;
+        whole.w = m_data->width;
+        whole.h = m_data->height;
+        whole.x = whole.y = std::vector<int64_t>(frames.size(), 0);
+        return whole;
+    }
+    return draw_crops(m_data->width, m_data->height, m_opts.crop_px, m_opts.seed, m_step,
+                      frames.size());
+}
+
+torch::Tensor FitEngine::reblur_crops(const Layers& L, const std::vector<int64_t>& frames,
+                                      const Crops& c, const Windows& win) const {
+    // The radius maps' windows: in the padded maps frame pixel x sits at x + m_pad.
+    std::vector<torch::Tensor> out;
+    for (size_t b = 0; b < frames.size(); ++b) {
+        const int64_t t = frames[b], wy = win.y0[b] + m_pad, wx = win.x0[b] + m_pad;
+        auto window = [&](const torch::Tensor& padded, const torch::Tensor& plain) {
+            return (m_pad > 0 ? padded : plain)[t].narrow(0, wy, win.h).narrow(1, wx, win.w);
+        };
+        auto blurred = reblur_frame(L, b, t, window(m_radius_pad, m_data->radius),
+                                    window(m_radius_fg_pad, m_data->layer_radius(true)),
+                                    window(m_radius_bg_pad, m_data->layer_radius(false)));
+        out.push_back(
+            blurred.narrow(1, c.y[b] - win.y0[b], c.h).narrow(2, c.x[b] - win.x0[b], c.w));
+    }
+    return torch::stack(out);
+}
+
+namespace {
+
+// The layers over the windows, their gradient kept inside the crops only (the values
+// everywhere): the margin around a crop holds light the blur spreads into it, and a texel seen
+// only there, through the blur alone, is barely determined by the crop; Adam would move it by
+// its full step all the same (docs/method.md, Crops).
+Layers train_crops_only(Layers L, const Crops& c, const Windows& win) {
+    auto mask = torch::zeros({int64_t(c.x.size()), 1, win.h, win.w});
+    for (size_t b = 0; b < c.x.size(); ++b)
+        mask[int64_t(b)]
+            .narrow(1, c.y[b] - win.y0[b], c.h)
+            .narrow(2, c.x[b] - win.x0[b], c.w)
+            .fill_(1.0f);
+    auto keep = [&](torch::Tensor& x) {
+        if (x.defined()) x = x.detach() + (x - x.detach()) * mask;
+    };
+    keep(L.sharp);
+    keep(L.bg);
+    keep(L.fg);
+    keep(L.alpha);
+    return L;
+}
+
+// The layers over the windows cut to the crops (x0, y0: the crops' corners).
+Layers cut_to_crops(const Layers& L, const Crops& c, const Windows& win) {
+    auto cut = [&](const torch::Tensor& x, int64_t dy) {  // dy: the row dimension of x[b]
+        if (!x.defined()) return x;
+        std::vector<torch::Tensor> per;
+        for (size_t b = 0; b < c.x.size(); ++b)
+            per.push_back(x[int64_t(b)]
+                              .narrow(dy, c.y[b] - win.y0[b], c.h)
+                              .narrow(dy + 1, c.x[b] - win.x0[b], c.w));
+        return torch::stack(per);
+    };
+    Layers out;
+    out.sharp = cut(L.sharp, 1);
+    out.bg = cut(L.bg, 1);
+    out.fg = cut(L.fg, 1);
+    out.alpha = cut(L.alpha, 1);
+    out.uv_bg = cut(L.uv_bg, 0);
+    out.uv_fg = cut(L.uv_fg, 0);
+    out.x0 = c.x;
+    out.y0 = c.y;
+    return out;
+}
+
+// The median of a frame's running residual ([1,H,W]) over the pixels crops have reached (−1:
+// not yet), on a lattice of at most ~65k of them: the frame's typical residual at a cost that
+// does not grow with the frame.
+double seen_median(const torch::Tensor& r) {
+    const int64_t H = r.size(1), W = r.size(2);
+    const int64_t s = std::max<int64_t>(1, int64_t(std::sqrt(double(H * W) / 65536.0)));
+    auto v = r.slice(1, 0, H, s).slice(2, 0, W, s).flatten();
+    auto seen = v.masked_select(v >= 0);
+    return seen.numel() > 0 ? seen.median().item<double>() : 0.0;
+}
+
+}  // namespace
+
 torch::Tensor FitEngine::robust_target(const torch::Tensor& rb, const torch::Tensor& target,
-                                       const std::vector<int64_t>& frames) {
+                                       const std::vector<int64_t>& frames, const Crops& c) {
     const bool robust = m_opts.robust_c > 0;
     if (!robust && !(m_opts.fallback_k > 0)) return target;  // nothing needs the residual
     torch::NoGradGuard no_grad;
@@ -177,11 +289,14 @@ torch::Tensor FitEngine::robust_target(const torch::Tensor& rb, const torch::Ten
                       F::AvgPool2dFuncOptions(5).stride(1));
     std::vector<torch::Tensor> w;
     for (size_t b = 0; b < frames.size(); ++b) {
-        auto r = m_resid[frames[b]];
+        // A crop updates its window of the frame's residual (a view into m_resid).
+        auto r = c.whole ? m_resid[frames[b]]
+                         : m_resid[frames[b]].narrow(1, c.y[b], c.h).narrow(2, c.x[b], c.w);
         auto fresh = e[b];
         r.copy_(torch::where(r < 0, fresh, 0.7 * r + 0.3 * fresh));
         if (!robust) continue;
-        const double scale = std::max(r.median().item<double>(), 1e-4);
+        const double scale =
+            std::max(c.whole ? r.median().item<double>() : seen_median(m_resid[frames[b]]), 1e-4);
         w.push_back(1.0 / (1.0 + (r / (m_opts.robust_c * scale)).pow(2)));
     }
     if (!robust || m_step < m_opts.robust_warmup) return target;
@@ -189,6 +304,34 @@ torch::Tensor FitEngine::robust_target(const torch::Tensor& rb, const torch::Ten
     // for the L1 and the MS-SSIM terms alike.
     auto wt = torch::stack(w);
     return wt * target + (1.0 - wt) * rb.detach();
+}
+
+FitEngine::StepRender FitEngine::render_step(const std::vector<int64_t>& frames,
+                                             const Crops& crops) {
+    StepRender r;
+    r.scored = crops;
+    if (crops.whole) {  // the reference path
+        r.trained = m_model->render_padded(frames, m_pad);
+        r.reblur = srgb_encode(reblur(r.trained, frames));
+        r.target = m_target.index_select(0, torch::tensor(frames, torch::kLong));
+        return r;
+    }
+    // The crop is what this step trains; the loss scores it and the pixels its blur reaches
+    // (the crop's gradient is then the whole frame's), over a window with the blur's margin
+    // around those (docs/method.md, Crops).
+    r.scored = grow_crops(crops, m_data->width, m_data->height, m_pad);
+    const Windows win = crop_windows(r.scored, m_data->width, m_data->height, m_pad, m_pad);
+    std::vector<torch::Tensor> t;
+    for (size_t b = 0; b < frames.size(); ++b)
+        t.push_back(m_target[frames[b]]
+                        .narrow(1, r.scored.y[b], r.scored.h)
+                        .narrow(2, r.scored.x[b], r.scored.w));
+    const Layers L =
+        train_crops_only(m_model->render_window(frames, win.x0, win.y0, win.h, win.w), crops, win);
+    r.reblur = srgb_encode(reblur_crops(L, frames, r.scored, win));
+    r.target = torch::stack(t);
+    r.trained = cut_to_crops(L, crops, win);  // what the priors see: the crops
+    return r;
 }
 
 void FitEngine::step() {
@@ -212,24 +355,28 @@ void FitEngine::step() {
         loss_v = mse;
     } else {
         std::lock_guard<std::mutex> lock(m_model_mutex);
-        // Learning rate: cosine decay to lr_floor over the budget.
+        // Learning rate: cosine decay to lr_floor over the budget; a crop step's times its
+        // share of the frame to the power crop_lr_power (docs/method.md, Crops).
+        auto frames = next_batch();
+        const Crops crops = step_crops(frames);
         const double frac = budget_fraction();
         const double fl = m_opts.lr_floor;
-        const double factor = fl + (1.0 - fl) * 0.5 * (1.0 + std::cos(M_PI * frac));
+        double factor = fl + (1.0 - fl) * 0.5 * (1.0 + std::cos(M_PI * frac));
+        if (!crops.whole)
+            factor *= std::pow(double(crops.w * crops.h) / double(m_data->width * m_data->height),
+                               m_opts.crop_lr_power);
         auto& groups = m_optim->param_groups();
         for (size_t i = 0; i < groups.size(); ++i)
             static_cast<torch::optim::AdamOptions&>(groups[i].options()).lr(m_base_lr[i] * factor);
 
-        auto frames = next_batch();
-        Layers L = m_model->render_padded(frames, m_pad);
-        auto rb = srgb_encode(reblur(L, frames));
-        auto idx = torch::tensor(frames, torch::kLong);
-        auto target = m_target.index_select(0, idx);
-        auto fit_target = robust_target(rb, target, frames);
+        const StepRender r = render_step(frames, crops);
+        const torch::Tensor& rb = r.reblur;
+        const torch::Tensor& target = r.target;
+        auto fit_target = robust_target(rb, target, frames, r.scored);
         auto l1 = (rb - fit_target).abs().mean();
         auto ms = ms_ssim_loss(rb, fit_target);
         auto reco = (1.0 - m_opts.ms_ssim_share) * l1 + m_opts.ms_ssim_share * ms;
-        auto loss = m_opts.w_reco * reco + m_model->priors(L, frames, m_step, terms);
+        auto loss = m_opts.w_reco * reco + m_model->priors(r.trained, frames, m_step, terms);
         if (!torch::isfinite(loss).item<bool>())
             throw Error("fit: the loss became NaN/Inf at step " + std::to_string(m_step));
         m_optim->zero_grad();

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "model/fit_model.h"
+#include "fit/crops.h"
 #include "fit/presets.h"
 #include "fit/settings.h"
 #include "ops/lens_blur.h"
@@ -55,6 +56,16 @@ struct FitOptions {
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;
+    // The crop step (docs/method.md, Crops): each step renders, reblurs and scores a crop of
+    // about this many px a side of each frame of its batch (crops.h draws them), plus the blur's
+    // margin, so that a step costs what a crop costs whatever the frame's size. An axis no
+    // longer than this is kept whole: a 320x180 clip trains on whole frames. 0: whole frames
+    // always (the reference path).
+    int64_t crop_px = 320;
+    // A crop step's learning rates are times the crop's share of the frame to this power: the
+    // square-root rule for Adam (Malladi et al. 2022), measured at par with whole frames for the
+    // same pixels seen (docs/method.md, Crops).
+    double crop_lr_power = 0.5;
     // The settings the user changed (settings.h): the fields above (applied by FitEngine) and
     // the preset model's options (applied by its factory, presets.h).
     Settings settings;
@@ -132,8 +143,24 @@ class FitEngine {
   private:
     // The reconstruction target with robust weights applied (see FitOptions::robust_c); updates
     // the running residual of `frames`.
+    // `crops` say where rb and target lie in their frames.
     torch::Tensor robust_target(const torch::Tensor& rb, const torch::Tensor& target,
-                                const std::vector<int64_t>& frames);
+                                const std::vector<int64_t>& frames, const Crops& crops);
+    // Layered reblur of the layers' frame b (frame t) with radius maps of the layers' size.
+    torch::Tensor reblur_frame(const Layers& L, size_t b, int64_t t, const torch::Tensor& r,
+                               const torch::Tensor& r_fg, const torch::Tensor& r_bg) const;
+    // The step's crops (whole frames where crops do not apply), and the crops' reblur: the
+    // layers render_window gave over `win`, reblurred and cut to the crops.
+    Crops step_crops(const std::vector<int64_t>& frames) const;
+    struct StepRender {
+        Layers trained;        // the layers over what the step trains (the priors')
+        torch::Tensor reblur;  // sRGB, over `scored`
+        torch::Tensor target;  // the input there
+        Crops scored;          // where the loss is taken
+    };
+    StepRender render_step(const std::vector<int64_t>& frames, const Crops& crops);
+    torch::Tensor reblur_crops(const Layers& L, const std::vector<int64_t>& frames,
+                               const Crops& crops, const Windows& win) const;
     std::vector<int64_t> next_batch();
     // The model of the preset on the data (each layer's radius split first), its padded radius
     // maps and its optimiser; again when a checkpoint asks for another subject track or atlas
@@ -155,7 +182,9 @@ class FitEngine {
     mutable std::vector<torch::Tensor> m_unexplained;
     mutable int64_t m_unexplained_step = -1;
     mutable std::mutex m_unexplained_mutex;
-    int64_t m_pad = 0;  // training renders this margin beyond the frame (max_pad)
+    int64_t m_pad = 0;       // training renders this margin beyond the frame (max_pad)
+    bool m_crops = false;    // whether steps take crops (FitOptions::crop_px, and the model
+                             // renders the blur's margin)
     // [T,H+2pad,W+2pad] radius, edges replicated: the visible surface's, the subject's, the wall's
     torch::Tensor m_radius_pad, m_radius_fg_pad, m_radius_bg_pad;
     std::mt19937_64 m_rng;

@@ -59,6 +59,11 @@ const std::vector<Field<FitOptions>>& fit_fields() {
          "(0: off)"},
         {"fit.layer_radius", &O::layer_radius, 0, 1,
          "two layers: each blurred with its own radius, not the visible surface's"},
+        {"fit.crop_px", &O::crop_px, 0, 1e5,
+         "a step renders, reblurs and scores a crop of about this many px a side of each frame "
+         "(an axis no longer: whole); 0: whole frames; at least 32"},
+        {"fit.crop_lr_power", &O::crop_lr_power, 0, 2,
+         "a crop step's learning rates times its share of the frame to this power"},
     };
     return f;
 }

@@ -62,6 +62,9 @@ struct Layers {
     torch::Tensor alpha;  // [B,1,H,W]  undefined with one layer
     torch::Tensor uv_bg;  // [B,H,W,2]  atlas coordinates in [-1,1] (grid_sample convention)
     torch::Tensor uv_fg;  // [B,H,W,2]  undefined with one layer
+    // Frame pixel of each frame's layer pixel (0, 0): (−pad, −pad) for render_padded, the
+    // window's corner for render_window. Empty: (0, 0) for every frame.
+    std::vector<int64_t> x0, y0;
 };
 
 using LossTerms = std::map<std::string, double>;
@@ -70,6 +73,12 @@ struct ParamGroup {
     std::vector<torch::Tensor> params;
     double lr = 1e-3;
 };
+
+// Throws naming `who` unless there is one window corner per frame and every h × w window lies
+// within `pad` px of the height × width frame.
+void check_windows(const std::string& who, int64_t frames, int64_t height, int64_t width,
+                   int64_t pad, const std::vector<int64_t>& x0, const std::vector<int64_t>& y0,
+                   int64_t h, int64_t w);
 
 class FitModel {
   public:
@@ -88,6 +97,13 @@ class FitModel {
     virtual int preferred_batch() const { return 2; }
     virtual std::string preferred_batch_reason() const { return {}; }
     virtual Layers render_padded(const std::vector<int64_t>& frames, int64_t pad);
+    // Frames rendered over windows of h × w px, frame b's over frame pixels [x0[b], x0[b] + w)
+    // × [y0[b], y0[b] + h), each within max_pad() px of the frame: [B,·,h,w]. The fit's crop
+    // step renders a crop plus the blur's margin (docs/method.md, Crops). The default cuts the
+    // windows out of render_padded (exact, not cheaper); the fast model samples its atlases at
+    // the window's pixels only.
+    virtual Layers render_window(const std::vector<int64_t>& frames, const std::vector<int64_t>& x0,
+                                 const std::vector<int64_t>& y0, int64_t h, int64_t w);
     // Priors of paper eq. 4 that the model owns (sparsity, rigidity, flow, TV, mask bootstrap),
     // weighted, summed; each term's value is recorded in `terms`.
     virtual torch::Tensor priors(const Layers& layers, const std::vector<int64_t>& frames,

@@ -1,0 +1,163 @@
+// The fast model over windows of its frames (the fit's crop step, docs/method.md, Crops): the
+// atlas coordinates of a window's pixels, and the priors restricted to what the windows read.
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "fit/crops.h"
+#include "fit/fast_model.h"
+#include "fit/losses.h"
+
+namespace refocus {
+
+namespace {
+
+// lo..hi (inclusive) within 0..n − 1, at least two long where n allows (a difference needs two).
+std::pair<int64_t, int64_t> span_of(int64_t lo, int64_t hi, int64_t n) {
+    lo = std::clamp<int64_t>(lo, 0, std::max<int64_t>(0, n - 2));
+    hi = std::clamp<int64_t>(hi, std::min(lo + 1, n - 1), n - 1);
+    return {lo, hi};
+}
+
+// Cells lo..hi (inclusive) of a grid of n cells that a bilinear upsample to L px reads over
+// pixels [from, from + len), grown by one cell a side (a difference needs its neighbour).
+// With `corners` pixel i reads cell i·(n − 1)/(L − 1), without (i + ½)·n/L − ½.
+std::pair<int64_t, int64_t> cells_read(int64_t from, int64_t len, int64_t L, int64_t n,
+                                       bool corners) {
+    auto at = [&](int64_t i) {
+        const double p = std::clamp<double>(double(i), 0.0, double(L - 1));
+        return corners ? (L > 1 ? p * double(n - 1) / double(L - 1) : 0.0)
+                       : (p + 0.5) * double(n) / double(L) - 0.5;
+    };
+    const int64_t lo = int64_t(std::floor(at(from))) - 1;
+    const int64_t hi = int64_t(std::floor(at(from + len - 1))) + 2;
+    return span_of(lo, hi, n);
+}
+
+}  // namespace
+
+bool FastModel::covers_frames(const Layers& layers) const {
+    const int64_t H = m_data.height, W = m_data.width;
+    const int64_t pad = (layers.sharp.size(3) - W) / 2;
+    auto at_pad = [&](const std::vector<int64_t>& v) {
+        return std::all_of(v.begin(), v.end(), [&](int64_t c) { return c == -pad; });
+    };
+    return at_pad(layers.x0) && at_pad(layers.y0) && layers.sharp.size(2) == H + 2 * pad &&
+           layers.sharp.size(3) == W + 2 * pad;
+}
+
+torch::Tensor FastModel::map_coords_window(const Atlas& a, const std::vector<int64_t>& frames,
+                                           const std::vector<int64_t>& x0,
+                                           const std::vector<int64_t>& y0, int64_t h,
+                                           int64_t w) const {
+    const int64_t B = frames.size();
+    auto idx = torch::tensor(frames, torch::kLong);
+    auto p = torch::matmul(a.to_atlas.index_select(0, idx), window_pixels(x0, y0, h, w));
+    auto px = (p.narrow(1, 0, 2) / p.narrow(1, 2, 1)).view({B, 2, h, w});
+    if (a.learn_warp || a.warp.requires_grad())  // the residual warp is held constant past the edge
+        px = px + a.scale * upsample_window(a.warp.index_select(0, idx), m_data.height,
+                                            m_data.width, x0, y0, h, w, true);
+    return px.permute({0, 2, 3, 1});
+}
+
+torch::Tensor FastModel::bootstrap_l1(const Layers& layers,
+                                      const std::vector<int64_t>& frames) const {
+    const int64_t H = m_data.height, W = m_data.width, h = layers.alpha.size(2),
+                  w = layers.alpha.size(3);
+    const int64_t pad = (w - W) / 2;
+    auto idx = torch::tensor(frames, torch::kLong);
+    if (covers_frames(layers)) {  // whole frames (render_padded)
+        auto alpha = layers.alpha.narrow(2, pad, H).narrow(3, pad, W);
+        return ((alpha - m_data.mask.index_select(0, idx)).abs() *
+                m_boot_weight.index_select(0, idx))
+            .mean();
+    }
+    // Windows (render_window): each frame's part inside the frame, averaged over all of them.
+    torch::Tensor sum = torch::zeros({});
+    int64_t n = 0;
+    for (size_t b = 0; b < frames.size(); ++b) {
+        const int64_t fx0 = std::max<int64_t>(layers.x0[b], 0),
+                      fx1 = std::min<int64_t>(layers.x0[b] + w, W),
+                      fy0 = std::max<int64_t>(layers.y0[b], 0),
+                      fy1 = std::min<int64_t>(layers.y0[b] + h, H);
+        if (fx1 <= fx0 || fy1 <= fy0) continue;
+        auto in_frame = [&](const torch::Tensor& x) {  // [C,H,W] of the frame → its part
+            return x.narrow(1, fy0, fy1 - fy0).narrow(2, fx0, fx1 - fx0);
+        };
+        auto a = layers.alpha[b]
+                     .narrow(1, fy0 - layers.y0[b], fy1 - fy0)
+                     .narrow(2, fx0 - layers.x0[b], fx1 - fx0);
+        const int64_t t = frames[b];
+        sum = sum + ((a - in_frame(m_data.mask[t])).abs() * in_frame(m_boot_weight[t])).sum();
+        n += (fx1 - fx0) * (fy1 - fy0);
+    }
+    return sum / double(std::max<int64_t>(n, 1));
+}
+
+torch::Tensor FastModel::warp_smoothness(const torch::Tensor& w) {
+    auto dx = w.narrow(3, 1, w.size(3) - 1) - w.narrow(3, 0, w.size(3) - 1);
+    auto dy = w.narrow(2, 1, w.size(2) - 1) - w.narrow(2, 0, w.size(2) - 1);
+    return dx.pow(2).mean() + dy.pow(2).mean() + 1e-3 * w.pow(2).mean();
+}
+
+torch::Tensor FastModel::window_tv(const Atlas& a, const torch::Tensor& composed,
+                                   const torch::Tensor& uv) const {
+    // Each window's box in the atlas: the texels its bicubic taps read (uv in [-1, 1] spans
+    // the atlas, texel i centred at (2i + 1)/size − 1), grown by one for the differences.
+    const int64_t B = uv.size(0);
+    torch::Tensor sum = torch::zeros({});
+    for (int64_t b = 0; b < B; ++b) {
+        auto px = (uv[b].detach().reshape({-1, 2}) + 1.0) *
+                      torch::tensor({0.5f * float(a.width), 0.5f * float(a.height)}) -
+                  0.5;
+        auto lo = std::get<0>(px.min(0)), hi = std::get<0>(px.max(0));
+        auto box = [&](int k, int64_t n) {
+            const auto [l, h] = span_of(int64_t(std::floor(lo[k].item<double>())) - 2,
+                                        int64_t(std::floor(hi[k].item<double>())) + 3, n);
+            return std::make_pair(l, h - l + 1);
+        };
+        const auto [x0, w] = box(0, a.width);
+        const auto [y0, h] = box(1, a.height);
+        auto weight =
+            a.tv_weight.defined() ? a.tv_weight.narrow(2, y0, h).narrow(3, x0, w) : torch::Tensor();
+        sum = sum + tv_l1(composed.narrow(2, y0, h).narrow(3, x0, w), weight);
+    }
+    return sum / double(B);
+}
+
+torch::Tensor FastModel::window_warp(const Atlas& a, const Layers& layers,
+                                     const std::vector<int64_t>& frames) const {
+    const int64_t gh = a.warp.size(2), gw = a.warp.size(3);
+    const int64_t h = layers.sharp.size(2), w = layers.sharp.size(3);
+    torch::Tensor sum = torch::zeros({});
+    for (size_t b = 0; b < frames.size(); ++b) {
+        const auto ry = cells_read(layers.y0[b], h, m_data.height, gh, true);
+        const auto rx = cells_read(layers.x0[b], w, m_data.width, gw, true);
+        auto cells = a.warp[frames[b]]
+                         .narrow(1, ry.first, ry.second - ry.first + 1)
+                         .narrow(2, rx.first, rx.second - rx.first + 1)
+                         .unsqueeze(0);
+        sum = sum + warp_smoothness(cells);
+    }
+    return sum / double(frames.size());
+}
+
+torch::Tensor FastModel::window_alpha_residual(const Layers& layers,
+                                               const std::vector<int64_t>& frames) const {
+    const int64_t gh = m_alpha_logit.size(2), gw = m_alpha_logit.size(3);
+    const int64_t h = layers.sharp.size(2), w = layers.sharp.size(3);
+    torch::Tensor sum = torch::zeros({});
+    for (size_t b = 0; b < frames.size(); ++b) {
+        const auto ry = cells_read(layers.y0[b], h, m_data.height, gh, false);
+        const auto rx = cells_read(layers.x0[b], w, m_data.width, gw, false);
+        sum = sum + m_alpha_logit[frames[b]]
+                        .narrow(1, ry.first, ry.second - ry.first + 1)
+                        .narrow(2, rx.first, rx.second - rx.first + 1)
+                        .abs()
+                        .mean();
+    }
+    return sum / double(frames.size());
+}
+
+}  // namespace refocus
