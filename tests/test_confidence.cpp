@@ -94,7 +94,8 @@ TEST_CASE("the low-frequency lock: a colour shift is undone, fine detail is kept
     auto mean_err = (fixed - input).mean({0, 2, 3}).abs().max().item<double>();
     CHECK(mean_err < 1e-3);
     // The checker (far above the lock's scale) stays: what is left of the change is it.
-    auto kept = ((fixed - input) * checker).sum().item<double>() / (checker * checker).sum().item<double>();
+    auto kept =
+        ((fixed - input) * checker).sum().item<double>() / (checker * checker).sum().item<double>();
     CHECK(kept > 0.95);
     // The Gaussian keeps a constant (edges replicated) and sums to one.
     auto c = torch::full({1, 1, 9, 9}, 0.3f);
