@@ -31,6 +31,8 @@ int main(int argc, char** argv) {
                 "usage: refocus-studio [project-or-clip] [--frame N] [--size WxH]\n"
                 "                      [--screenshot out.png --exit-after FRAMES] [--script "
                 "steps.json]\n"
+                "--exit-after counts frames drawn once the viewer shows its picture (30 s at "
+                "most)\n"
                 "--script runs a JSON list of actions (see ui/studio_script.h) and exits: 0 when\n"
                 "every step passed.\n");
             return 0;

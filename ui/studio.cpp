@@ -432,6 +432,7 @@ int run_studio(const StudioOptions& opts) {
             }
         }
         int rendered = 0;
+        const double opened_at = glfwGetTime();
         while (code == 0 && !studio.want_close()) {
             if (glfwGetWindowAttrib(window, GLFW_ICONIFIED)) {
                 glfwWaitEventsTimeout(0.1);  // minimised: sleep instead of drawing
@@ -459,6 +460,12 @@ int run_studio(const StudioOptions& opts) {
                     break;
                 }
             }
+            // --exit-after counts frames drawn once the viewer has its picture (a loaded machine
+            // can take longer than a few frames), so a screenshot shows what a user would see;
+            // after 30 s it counts every frame.
+            if (rendered > 0 && !studio.viewer_has_picture() && !opts.open_path.empty() &&
+                glfwGetTime() - opened_at < 30.0)
+                rendered = 0;
             if (opts.exit_after >= 0 && rendered >= opts.exit_after) {
                 if (!opts.screenshot.empty()) studio.screenshot(opts.screenshot);
                 break;

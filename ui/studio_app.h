@@ -76,6 +76,8 @@ class Studio {
     void start_export(const nlohmann::json& request) {
         refocus::start_export(m_export, m_ctx, request);
     }
+    // Whether the viewer has drawn a picture (frames load off the UI thread).
+    bool viewer_has_picture() const { return m_viewer.img_w > 0; }
     void screenshot(const std::string& path);
     void set_mode(const ViewModeInfo& m) { set_view_mode(m_viewer, m_ctx, m); }
 
