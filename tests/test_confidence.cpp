@@ -67,6 +67,38 @@ TEST_CASE("the need to fix: zero where no blur reaches, one within a blurred reg
     CHECK(blur_need(r, 0).min().item<double>() == 1.0);  // off
 }
 
+TEST_CASE("the sharpest the clip saw a pixel, and how far that lets the model restore it") {
+    const int T = 6, H = 12, W = 20;
+    // Frame 3 sees the left half at 0.5 px; every other frame sees all at 6 px.
+    auto radius_of = [&](int s) {
+        auto r = torch::full({H, W}, 6.0);
+        if (s == 3) r.narrow(1, 0, W / 2).fill_(0.5);
+        return r;
+    };
+    auto still = torch::eye(3, torch::kFloat64).repeat({T, 1, 1});
+    for (bool static_camera : {true, false}) {
+        auto best = sharpest_seen(0, T, 32, still, static_camera, 30.0, radius_of);
+        CHECK(px_at(best, 6, 2) == doctest::Approx(0.5));
+        CHECK(px_at(best, 6, 17) == doctest::Approx(6.0));
+    }
+    auto tau = seen_trust(sharpest_seen(0, T, 32, still, true, 30.0, radius_of), 2.0);
+    CHECK(px_at(tau, 6, 2) == doctest::Approx(1.0));   // restored: frame 3 recorded it
+    CHECK(px_at(tau, 6, 17) == doctest::Approx(0.0));  // no frame did: the shot
+    CHECK(px_at(tau, 6, 10) > 0.2);                    // feathered across the seam
+    CHECK(px_at(tau, 6, 10) < 0.8);
+    CHECK(seen_trust(torch::full({1, 1, H, W}, 9.0), 0).min().item<double>() == 1.0);  // off
+    // A pan: frame 3 sees the reference shifted by 8 px; its sharp half covers frame 0's columns
+    // 8..17, and frame 0's columns 0..7 were not in frame 3's view at all.
+    auto pan = still.clone();
+    pan[3][0][2] = 8.0;  // frame 3's x is the reference's x + 8... (frame → reference: x + 8)
+    auto best = sharpest_seen(0, T, 32, pan, false, 30.0, radius_of);
+    CHECK(px_at(best, 6, 12) == doctest::Approx(0.5));
+    CHECK(px_at(best, 6, 3) == doctest::Approx(6.0));  // the other frames saw it at 6 px
+    // With a stride the spread still reaches every part of the clip.
+    CHECK(px_at(sharpest_seen(0, T, 2, still, true, 30.0, radius_of), 6, 2) ==
+          doctest::Approx(0.5));
+}
+
 TEST_CASE("the unexplained share: a region far above the frame's typical residual") {
     const int H = 48, W = 48;
     auto e = torch::full({1, 1, H, W}, 0.01);
@@ -150,4 +182,57 @@ TEST_CASE("a region whose radius is wrong falls back to the shot; the rest keeps
     CHECK(out_wrong > in_wrong - 0.5);  // never (much) worse than the shot
     CHECK(out_right > in_right + 1.0);  // where the model is right, it still fixes the shot
     CHECK(k_wrong < k_right - 0.2);     // and the confidence pass says where
+}
+
+TEST_CASE(
+    "a radius too large in every frame: no frame saw the scene sharp, the plate is the shot") {
+    // The true radius plus 4 px in every frame: the frames agree on a wrong sharp frame (it
+    // reblurs well), so only the sharpest radius seen (fit.trust_seen_px) can tell.
+    test::TinyClip c = test::make_tiny("confidence_radius_plus4", "rack", "160x90");
+    const int T = 8;
+    const auto coc = read_all_frames((c.clip / "coc_%04d.exr").string());
+    REQUIRE(static_cast<int>(coc.size()) == T);
+    const fs::path wrong = c.dir / "wrong";
+    fs::create_directories(wrong);
+    for (int t = 0; t < T; ++t) {
+        Image m = coc[t];
+        for (float& v : m.pixels) v += 4.0f;
+        char name[32];
+        std::snprintf(name, sizeof name, "coc_%04d.exr", t);
+        write_image_file((wrong / name).string(), m, PixelFormat::ExrFloat, false);
+    }
+    auto r = test::cli("fit '" + c.project.string() + "' --iters 150 --coc '" +
+                       (wrong / "coc_%04d.exr").string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    r = test::cli("export '" + c.project.string() + "' --what sharp --format exr32 --out '" +
+                  (c.dir / "sharp").string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    // Export says so: most of the plate is the shot because no frame saw it sharp.
+    const auto at = r.output.find("% that no frame saw sharp");
+    REQUIRE(at != std::string::npos);
+    const auto from = r.output.rfind(' ', at) + 1;
+    CHECK(std::stod(r.output.substr(from, at - from)) > 50.0);
+    const auto sharp = read_all_frames((c.dir / "sharp/sharp_%04d.exr").string());
+    r = test::cli("export '" + c.project.string() + "' --what confidence --format exr32 --out '" +
+                  (c.dir / "conf").string() + "'");
+    REQUIRE(r.code == 0);
+    const auto conf = read_all_frames((c.dir / "conf/confidence_%04d.exr").string());
+    const auto gt = read_all_frames((c.clip / "sharp_%04d.png").string());
+    const auto input = read_all_frames((c.clip / "input_%04d.png").string());
+    double out = 0, in = 0, k = 0, worst = 1e9;
+    for (int t = 0; t < T; ++t) {
+        const double o = psnr(sharp[t], gt[t]), i = psnr(input[t], gt[t]);
+        out += o / T, in += i / T, worst = std::min(worst, o - i);
+        double sum = 0;
+        for (size_t p = 0; p < conf[t].pixels.size(); p += conf[t].channels)
+            sum += conf[t].pixels[p];
+        k += sum / (conf[t].pixels.size() / conf[t].channels) / T;
+    }
+    MESSAGE("radius + 4 px: input " << in << " dB, output " << out << " dB (worst frame " << worst
+                                    << " dB), confidence " << k);
+    CHECK(out > in - 0.5);
+    CHECK(worst > -0.5);
+    CHECK(k < 0.2);
 }

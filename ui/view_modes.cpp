@@ -81,8 +81,9 @@ Image render_depth(const ModeInput& in) {
 }
 
 // The shot in grey, tinted green where the sharp plate comes from the fit and red where the fit
-// cannot explain the region and the plate falls back to the shot; grey stays grey where nothing
-// is blurred (the plate is the shot, and needs nothing). docs/method.md, Confidence and fallback.
+// cannot explain the region, or no frame saw it sharp, and the plate falls back to the shot;
+// grey stays grey where nothing is blurred (the plate is the shot, and needs nothing).
+// docs/method.md, Confidence and fallback.
 Image render_confidence(const ModeInput& in) {
     if (!in.view || in.view->confidence.empty()) return in.input;
     const Image& c = in.view->confidence;
@@ -128,9 +129,9 @@ const std::vector<ViewModeInfo>& view_modes() {
          render_depth},
         {"alpha", "Alpha", "The foreground layer's matte", 0, true, false, false, render_alpha},
         {"confidence", "Confidence",
-         "Green: the sharp plate comes from the fit. Red: the fit cannot explain the region and "
-         "the plate falls back to the shot. Grey: nothing is blurred there; the plate is the "
-         "shot",
+         "Green: the sharp plate comes from the fit. Red: the fit cannot explain the region, or "
+         "no frame saw it sharp, and the plate falls back to the shot. Grey: nothing is blurred "
+         "there; the plate is the shot",
          0, true, false, false, render_confidence},
     };
     return modes;

@@ -37,7 +37,8 @@ torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min
                          F::AvgPool2dFuncOptions(9).stride(1));
 }
 
-torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t) {
+torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t,
+                             bool outside_zero) {
     torch::NoGradGuard g;
     const int64_t H = m_s.size(2), W = m_s.size(3);
     auto h = torch::matmul(torch::linalg_inv(to_ref[s]), to_ref[t]).to(torch::kFloat32);  // t → s
@@ -49,11 +50,11 @@ torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_r
     auto gx = (2 * q.narrow(1, 0, 1) / w + 1) / W - 1;
     auto gy = (2 * q.narrow(1, 1, 1) / w + 1) / H - 1;
     auto grid = torch::cat({gx, gy}, 1).view({1, H, W, 2});
-    return F::grid_sample(m_s, grid,
-                          F::GridSampleFuncOptions()
-                              .mode(torch::kBilinear)
-                              .padding_mode(torch::kBorder)
-                              .align_corners(false));
+    F::GridSampleFuncOptions::padding_mode_t pad = torch::kBorder;
+    if (outside_zero) pad = torch::kZeros;
+    return F::grid_sample(
+        m_s, grid,
+        F::GridSampleFuncOptions().mode(torch::kBilinear).padding_mode(pad).align_corners(false));
 }
 
 torch::Tensor temporal_unexplained(int t, int frames, int window, const torch::Tensor& to_ref,
@@ -76,6 +77,39 @@ torch::Tensor temporal_unexplained(int t, int frames, int window, const torch::T
         ++n;
     }
     return torch::maximum(own, sum / n);
+}
+
+torch::Tensor sharpest_seen(int t, int frames, int max_frames, const torch::Tensor& to_ref,
+                            bool static_camera, double unseen_px,
+                            const std::function<torch::Tensor(int)>& radius_of) {
+    torch::NoGradGuard g;
+    auto as_map = [](const torch::Tensor& r) {
+        return r.view({1, 1, r.size(-2), r.size(-1)}).to(torch::kFloat32);
+    };
+    auto best = as_map(radius_of(t));
+    const bool warp = !static_camera && to_ref.defined();
+    // Every frame when they are few, else an even spread (the radius changes smoothly in time,
+    // so a spread misses a focus hit by at most the change over its stride).
+    const int stride =
+        std::max(1, (frames + std::max(1, max_frames) - 1) / std::max(1, max_frames));
+    for (int s = t % stride; s < frames; s += stride) {
+        if (s == t) continue;
+        auto r = as_map(radius_of(s));
+        // Drawn as (unseen − r) with zeros outside frame s: a pixel it did not see reads unseen.
+        if (warp)
+            r = unseen_px - warp_frame_map(unseen_px - r.clamp_max(unseen_px), to_ref, s, t,
+                                           /*outside_zero=*/true);
+        best = torch::minimum(best, r);
+    }
+    return best;
+}
+
+torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px) {
+    torch::NoGradGuard g;
+    if (!(trust_px > 0)) return torch::ones_like(sharpest);
+    auto tau = 1.0 - smoothstep01((sharpest - trust_px) / trust_px);
+    return F::avg_pool2d(F::pad(tau, F::PadFuncOptions({4, 4, 4, 4}).mode(torch::kReplicate)),
+                         F::AvgPool2dFuncOptions(9).stride(1));
 }
 
 torch::Tensor blur_need(const torch::Tensor& radius, double focus_px) {

@@ -17,8 +17,9 @@ namespace refocus {
 torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min);
 
 // Map m_s ([1,C,H,W]) of frame s drawn in frame t's pixels through the camera's homographies
-// (to_ref [T,3,3] float64, frame → reference; border padding).
-torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t);
+// (to_ref [T,3,3] float64, frame → reference; border padding, or zeros with outside_zero).
+torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t,
+                             bool outside_zero = false);
 
 // The unexplained share of frame t made smooth in time: the larger of its own and the mean of
 // frames t ± window drawn in frame t (through the homographies): a frame keeps its own fallback,
@@ -27,6 +28,20 @@ torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_r
 torch::Tensor temporal_unexplained(int t, int frames, int window, const torch::Tensor& to_ref,
                                    bool static_camera,
                                    const std::function<torch::Tensor(int)>& u_of);
+
+// The sharpest the clip saw each pixel of frame t: the least radius over frames s (t, and at
+// most `max_frames` others spread over the clip) of frame s's radius map drawn into frame t
+// through the homographies ([1,1,H,W] px). A pixel frame s did not see takes `unseen_px` from
+// it. `radius_of(s)` gives frame s's map ([H,W] px).
+torch::Tensor sharpest_seen(int t, int frames, int max_frames, const torch::Tensor& to_ref,
+                            bool static_camera, double unseen_px,
+                            const std::function<torch::Tensor(int)>& radius_of);
+
+// τ: how far the model is trusted to restore a pixel that the sharpest frame saw blurred by
+// `sharpest` px: 1 up to trust_px, 0 from twice that (smoothstep), feathered by 4 px. Detail
+// that no frame recorded comes from deconvolution alone, which noise and a kernel that differs
+// from the lens turn into ringing (docs/method.md, Confidence and fallback).
+torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px);
 
 // ν: 0 where no blur of radius ≥ focus_px reaches the pixel, 1 from twice that. The blur of a
 // pixel q reaches p when |p − q| ≤ r(q): r is dilated by a cone (iterated 3x3 max − 1 px), so a

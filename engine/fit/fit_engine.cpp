@@ -438,18 +438,33 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
     return f;
 }
 
+torch::Tensor FitEngine::seen_trust_map(int t) const {
+    if (m_model->steps_itself() || !(m_opts.trust_seen_px > 0) || t < 0 || t >= m_data->frames)
+        return {};
+    std::lock_guard<std::mutex> lock(m_unexplained_mutex);
+    if (m_seen.empty()) m_seen.assign(m_data->frames, torch::Tensor());
+    auto& tau = m_seen[t];
+    if (!tau.defined()) {
+        // A pixel no frame saw is given a radius past any trust, so it falls back.
+        const double unseen = 4.0 * m_opts.trust_seen_px + 1.0;
+        auto best = sharpest_seen(t, m_data->frames, 32, m_data->to_ref, m_data->static_camera,
+                                  unseen, [&](int s) { return m_data->radius[s]; });
+        tau = seen_trust(best, m_opts.trust_seen_px);
+    }
+    return tau;
+}
+
 torch::Tensor FitEngine::confidence(int t) const {
     auto f = fallback_weight(t);
-    return f.defined() ? 1.0 - f : torch::ones({1, 1, m_data->height, m_data->width});
+    auto k = f.defined() ? 1.0 - f : torch::ones({1, 1, m_data->height, m_data->width});
+    auto tau = seen_trust_map(t);
+    return tau.defined() ? k * tau : k;
 }
 
 torch::Tensor FitEngine::model_weight(int t) const {
     if (t < 0 || t >= m_data->frames) return {};
-    auto f = fallback_weight(t);
-    const bool keep_focus = m_opts.keep_focus_px > 0;
-    if (!f.defined() && !keep_focus) return {};
-    auto w = f.defined() ? 1.0 - f : torch::ones({1, 1, m_data->height, m_data->width});
-    if (keep_focus) w = w * blur_need(m_data->radius[t], m_opts.keep_focus_px);
+    auto w = confidence(t);
+    if (m_opts.keep_focus_px > 0) w = w * blur_need(m_data->radius[t], m_opts.keep_focus_px);
     if (!(w < 1 - 1e-3).any().item<bool>()) return {};
     return w;
 }

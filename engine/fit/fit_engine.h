@@ -53,6 +53,10 @@ struct FitOptions {
     // the plate takes the input's content, since a blur keeps local means and a colour or
     // exposure shift is never a deblur (0: off).
     double lock_low_px = 2.0;
+    // Seen sharp (confidence.h, seen_trust): the model restores a pixel fully where some frame
+    // saw it blurred by at most this radius (px), and not from twice that: detail no frame
+    // recorded comes from deconvolution alone (0: trust it everywhere).
+    double trust_seen_px = 2.0;
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;
@@ -125,8 +129,12 @@ class FitEngine {
     // model does not explain it), or undefined when nothing falls back (perframe, a frame not
     // trained yet, a checkpoint without the running residual).
     torch::Tensor fallback_weight(int t) const;
-    // 1 − fallback_weight(t): the confidence pass, [1,1,H,W] (1: the model explains the region).
+    // (1 − fallback_weight(t)) · τ_t, τ the seen-sharp trust (seen_trust_map): the confidence
+    // pass, [1,1,H,W] (1: the model explains the region).
     torch::Tensor confidence(int t) const;
+    // τ_t (confidence.h, seen_trust), undefined when fit.trust_seen_px is off. Cached: the
+    // radius maps do not change while the engine lives.
+    torch::Tensor seen_trust_map(int t) const;
     // The model's share of the output: confidence(t) times the need (0 where no blur reaches
     // the pixel, fit.keep_focus_px). [1,1,H,W], undefined when it is 1 everywhere.
     torch::Tensor model_weight(int t) const;
@@ -181,6 +189,7 @@ class FitEngine {
     // of a frame reads its neighbours', and the residual only changes with a step.
     mutable std::vector<torch::Tensor> m_unexplained;
     mutable int64_t m_unexplained_step = -1;
+    mutable std::vector<torch::Tensor> m_seen;  // seen_trust_map's cache, under the mutex below
     mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;  // whether steps take crops (FitOptions::crop_px, and the model

@@ -54,6 +54,9 @@ const std::vector<Field<FitOptions>>& fit_fields() {
          "the fallback is smooth in time: grown over +-n frames, then averaged over +-n"},
         {"fit.lock_low_px", &O::lock_low_px, 0, 64,
          "the plate takes the input's content below this Gaussian scale (px); 0: off"},
+        {"fit.trust_seen_px", &O::trust_seen_px, 0, 64,
+         "the model restores a pixel fully where some frame saw it blurred by at most this "
+         "radius (px), not from twice that; elsewhere the output is the shot (0: off)"},
         {"fit.keep_focus_px", &O::keep_focus_px, 0, 8,
          "where no blur of at least this radius (px) reaches a pixel, the output is the shot "
          "(0: off)"},

@@ -146,8 +146,9 @@ std::string FallbackShare::summary() const {
     if (worst_frame >= 0 && worst_share > 0.001)
         n += std::snprintf(buf + n, sizeof buf - n, " (most in frame %d: %.1f%%)", worst_frame,
                            100 * worst_share);
-    std::snprintf(buf + n, sizeof buf - n, ", and on %.1f%% where nothing is blurred",
-                  100 * in_focus / frames);
+    std::snprintf(buf + n, sizeof buf - n,
+                  ", on %.1f%% that no frame saw sharp, and on %.1f%% where nothing is blurred",
+                  100 * unseen / frames, 100 * in_focus / frames);
     return buf;
 }
 
@@ -156,11 +157,18 @@ namespace {
 void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
     auto f = engine.fallback_weight(t);
     auto w = engine.model_weight(t);
+    auto tau = engine.seen_trust_map(t);
     const double u = f.defined() ? f.mean().item<double>() : 0.0;
-    // The rest of the shot's share: in focus (w = (1 − f)·need).
+    // Explained but seen sharp by no frame: (1 − f)·(1 − τ).
+    const double unseen =
+        tau.defined()
+            ? ((f.defined() ? 1.0 - f : torch::ones_like(tau)) * (1.0 - tau)).mean().item<double>()
+            : 0.0;
+    // The rest of the shot's share: in focus (w = (1 − f)·τ·need).
     const double shot = w.defined() ? (1.0 - w).mean().item<double>() : 0.0;
     s.unexplained += u;
-    s.in_focus += std::max(0.0, shot - u);
+    s.unseen += unseen;
+    s.in_focus += std::max(0.0, shot - u - unseen);
     if (u > s.worst_share) s.worst_share = u, s.worst_frame = t;
     ++s.frames;
 }
