@@ -47,7 +47,6 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
         throw Error("fit: the radius maps contain NaN/Inf or negative values");
     {
         torch::NoGradGuard g;
-        m_target = srgb_encode(m_data->input);
         m_resid = torch::full({m_data->frames, 1, m_data->height, m_data->width}, -1.0f);
     }
     build_model();
@@ -313,7 +312,7 @@ FitEngine::StepRender FitEngine::render_step(const std::vector<int64_t>& frames,
     if (crops.whole) {  // the reference path
         r.trained = m_model->render_padded(frames, m_pad);
         r.reblur = srgb_encode(reblur(r.trained, frames));
-        r.target = m_target.index_select(0, torch::tensor(frames, torch::kLong));
+        r.target = srgb_encode(m_data->input.index_select(0, torch::tensor(frames, torch::kLong)));
         return r;
     }
     // The crop is what this step trains; the loss scores it and the pixels its blur reaches
@@ -323,13 +322,13 @@ FitEngine::StepRender FitEngine::render_step(const std::vector<int64_t>& frames,
     const Windows win = crop_windows(r.scored, m_data->width, m_data->height, m_pad, m_pad);
     std::vector<torch::Tensor> t;
     for (size_t b = 0; b < frames.size(); ++b)
-        t.push_back(m_target[frames[b]]
+        t.push_back(m_data->input[frames[b]]
                         .narrow(1, r.scored.y[b], r.scored.h)
                         .narrow(2, r.scored.x[b], r.scored.w));
     const Layers L =
         train_crops_only(m_model->render_window(frames, win.x0, win.y0, win.h, win.w), crops, win);
     r.reblur = srgb_encode(reblur_crops(L, frames, r.scored, win));
-    r.target = torch::stack(t);
+    r.target = srgb_encode(torch::stack(t));
     r.trained = cut_to_crops(L, crops, win);  // what the priors see: the crops
     return r;
 }
@@ -349,7 +348,8 @@ void FitEngine::step() {
             L = m_model->render(f);
         }
         auto rb = srgb_encode(reblur(L, f));
-        double mse = (rb - m_target[m_step].unsqueeze(0)).pow(2).mean().item<double>();
+        auto target = srgb_encode(m_data->input[m_step].unsqueeze(0));
+        double mse = (rb - target).pow(2).mean().item<double>();
         psnr_v = 10 * std::log10(1.0 / std::max(mse, 1e-12));
         terms["reco_mse"] = mse;
         loss_v = mse;

@@ -48,7 +48,7 @@ struct FitOptions {
     int fallback_frames = 2;  // smooth in time: grown over ±n frames, then averaged over ±n
     // Nothing to fix: where no blur of at least this radius (px) reaches a pixel, the output is
     // the shot (0: off).
-    double keep_focus_px = 0.25;
+    double keep_focus_px = 0.5;
     // Low-frequency lock (confidence.h, lock_low_frequencies): below this Gaussian scale (px)
     // the plate takes the input's content, since a blur keeps local means and a colour or
     // exposure shift is never a deblur (0: off).
@@ -183,7 +183,6 @@ class FitEngine {
     std::unique_ptr<FitModel> m_model;
     std::unique_ptr<torch::optim::Optimizer> m_optim;
     std::vector<double> m_base_lr;
-    torch::Tensor m_target;  // [T,3,H,W] sRGB-encoded input
     torch::Tensor m_resid;   // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
     // Each frame's unexplained share (confidence.h) as of step m_unexplained_step: the fallback
     // of a frame reads its neighbours', and the residual only changes with a step.
