@@ -183,7 +183,7 @@ class FitEngine {
     std::unique_ptr<FitModel> m_model;
     std::unique_ptr<torch::optim::Optimizer> m_optim;
     std::vector<double> m_base_lr;
-    torch::Tensor m_resid;   // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
+    torch::Tensor m_resid;  // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
     // Each frame's unexplained share (confidence.h) as of step m_unexplained_step: the fallback
     // of a frame reads its neighbours', and the residual only changes with a step.
     mutable std::vector<torch::Tensor> m_unexplained;
