@@ -445,7 +445,7 @@ torch::Tensor FitEngine::seen_trust_map(int t) const {
     if (m_seen.empty()) m_seen.assign(m_data->frames, torch::Tensor());
     auto& tau = m_seen[t];
     if (!tau.defined()) {
-        // A pixel no frame saw is given a radius past any trust, so it falls back.
+        // Where a frame did not see the pixel it reads past any trust: it lowers no minimum.
         const double unseen = 4.0 * m_opts.trust_seen_px + 1.0;
         auto best = sharpest_seen(t, m_data->frames, 32, m_data->to_ref, m_data->static_camera,
                                   unseen, [&](int s) { return m_data->radius[s]; });
