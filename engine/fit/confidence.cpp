@@ -22,6 +22,13 @@ torch::Tensor max_filter(const torch::Tensor& m, int radius) {
     return F::max_pool2d(m, F::MaxPool2dFuncOptions(2 * radius + 1).stride(1).padding(radius));
 }
 
+// A box mean over (2·radius + 1)² px, edges replicated: a map's seam made a ramp.
+torch::Tensor feather(const torch::Tensor& m, int radius) {
+    return F::avg_pool2d(
+        F::pad(m, F::PadFuncOptions({radius, radius, radius, radius}).mode(torch::kReplicate)),
+        F::AvgPool2dFuncOptions(2 * radius + 1).stride(1));
+}
+
 }  // namespace
 
 torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min) {
@@ -33,8 +40,7 @@ torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min
     f = -max_filter(-f, e);  // opened by 9 px
     f = max_filter(f, e);
     f = max_filter(f, 4);  // grown and feathered by 4 px
-    return F::avg_pool2d(F::pad(f, F::PadFuncOptions({4, 4, 4, 4}).mode(torch::kReplicate)),
-                         F::AvgPool2dFuncOptions(9).stride(1));
+    return feather(f, 4);
 }
 
 torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t,
@@ -90,8 +96,8 @@ torch::Tensor sharpest_seen(int t, int frames, int max_frames, const torch::Tens
     const bool warp = !static_camera && to_ref.defined();
     // Every frame when they are few, else an even spread (the radius changes smoothly in time,
     // so a spread misses a focus hit by at most the change over its stride).
-    const int stride =
-        std::max(1, (frames + std::max(1, max_frames) - 1) / std::max(1, max_frames));
+    const int spread = std::max(1, max_frames);
+    const int stride = std::max(1, (frames + spread - 1) / spread);
     for (int s = t % stride; s < frames; s += stride) {
         if (s == t) continue;
         auto r = as_map(radius_of(s));
@@ -107,9 +113,7 @@ torch::Tensor sharpest_seen(int t, int frames, int max_frames, const torch::Tens
 torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px) {
     torch::NoGradGuard g;
     if (!(trust_px > 0)) return torch::ones_like(sharpest);
-    auto tau = 1.0 - smoothstep01((sharpest - trust_px) / trust_px);
-    return F::avg_pool2d(F::pad(tau, F::PadFuncOptions({4, 4, 4, 4}).mode(torch::kReplicate)),
-                         F::AvgPool2dFuncOptions(9).stride(1));
+    return feather(1.0 - smoothstep01((sharpest - trust_px) / trust_px), 4);
 }
 
 torch::Tensor blur_need(const torch::Tensor& radius, double focus_px) {

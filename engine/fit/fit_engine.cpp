@@ -443,12 +443,16 @@ torch::Tensor FitEngine::seen_trust_map(int t) const {
         return {};
     std::lock_guard<std::mutex> lock(m_unexplained_mutex);
     if (m_seen.empty()) m_seen.assign(m_data->frames, torch::Tensor());
-    auto& tau = m_seen[t];
+    // A static camera sees each pixel at the same place in every frame: one map, over all of
+    // them, serves every frame.
+    const bool still = m_data->static_camera;
+    auto& tau = m_seen[still ? 0 : t];
     if (!tau.defined()) {
         // Where a frame did not see the pixel it reads past any trust: it lowers no minimum.
         const double unseen = 4.0 * m_opts.trust_seen_px + 1.0;
-        auto best = sharpest_seen(t, m_data->frames, 32, m_data->to_ref, m_data->static_camera,
-                                  unseen, [&](int s) { return m_data->radius[s]; });
+        auto best =
+            sharpest_seen(still ? 0 : t, m_data->frames, still ? m_data->frames : 32,
+                          m_data->to_ref, still, unseen, [&](int s) { return m_data->radius[s]; });
         tau = seen_trust(best, m_opts.trust_seen_px);
     }
     return tau;
