@@ -11,6 +11,8 @@
 #include "fit/fit_engine.h"
 #include "session/fit_session.h"
 #include "fit/fit_setup.h"
+#include "io/image_file.h"
+#include "io/tensor_image.h"
 #include "project/project.h"
 #include "util/error.h"
 #include "test_util.h"
@@ -186,4 +188,68 @@ TEST_CASE(
     auto state = a.model().state();
     state["fg_to_atlas"] = torch::eye(3).expand({2, 3, 3}).clone();
     CHECK_THROWS_WITH_AS(b.model().load_state(state), doctest::Contains("fg atlas"), Error);
+}
+
+TEST_CASE("preparation on a proxy: scaled up, it matches the full-size preparation") {
+    // A pan at 256x144 prepared on its 128x72 proxy and at full size: the homographies, the
+    // flow and the radius, both against each other and the radius against the truth.
+    TinyClip c = make_tiny("fit_proxy_prepare", "pan", "256x144");
+    const Project p = Project::load(c.project);
+    auto logged = [](const PrepareLog& l, const std::string& s) {
+        for (const auto& line : l.lines())
+            if (line.find(s) != std::string::npos) return true;
+        return false;
+    };
+    FitSetupOptions full_opts, proxy_opts;
+    full_opts.proxy_width = 0;
+    proxy_opts.proxy_width = 128;
+    PrepareLog log_full, log_proxy, log_again;
+    auto full = build_fit_data(p, full_opts, log_full);
+    auto proxy = build_fit_data(p, proxy_opts, log_proxy);
+    CHECK_FALSE(logged(log_full, "proxies"));
+    CHECK(logged(log_proxy, "on 128x72 proxies"));
+    CHECK_FALSE(logged(log_proxy, "prepare: reusing"));  // another size: prepared again
+    REQUIRE(proxy->radius.sizes() == full->radius.sizes());
+    REQUIRE(proxy->input.sizes() == full->input.sizes());
+    CHECK(torch::equal(proxy->input, full->input));  // the fit still sees every pixel
+    CHECK(proxy->static_camera == full->static_camera);
+
+    // Homographies: the frame corners' disagreement, px at full size.
+    double worst = 0;
+    for (int t = 0; t < p.frames; ++t) {
+        auto a = full->to_ref[t], b = proxy->to_ref[t];
+        for (double x : {0.0, 255.0})
+            for (double y : {0.0, 143.0}) {
+                auto v = torch::tensor({x, y, 1.0}, torch::kFloat64);
+                auto pa = a.matmul(v), pb = b.matmul(v);
+                pa = pa / pa[2], pb = pb / pb[2];
+                worst = std::max(worst, (pa - pb).narrow(0, 0, 2).norm().item<double>());
+            }
+    }
+    // Flow: median end-point disagreement where both are consistent.
+    auto both = (full->flow_valid > 0.5) & (proxy->flow_valid > 0.5);
+    auto epe = (full->flow_fwd - proxy->flow_fwd).norm(2, 1, true).masked_select(both);
+    const double flow_median = epe.numel() ? epe.median().item<double>() : 1e9;
+    // Radius against the truth.
+    std::vector<Image> truth;
+    for (int t = 0; t < p.frames; ++t)
+        truth.push_back(
+            read_image_file((c.clip / format_pattern("coc_%04d.exr", t)).string(), false).image);
+    const auto gt = stack_images(truth).squeeze(1);
+    const double err_full = (full->radius - gt).abs().mean().item<double>();
+    const double err_proxy = (proxy->radius - gt).abs().mean().item<double>();
+    MESSAGE("pan 256x144 on a 128x72 proxy: corners within "
+            << worst << " px of the full-size "
+            << "homographies, flow median end-point difference " << flow_median << " px ("
+            << epe.numel() << " px consistent in both), radius mean |error| " << err_proxy
+            << " px (full size " << err_full << " px)");
+    CHECK(worst < 1.5);
+    CHECK(flow_median < 0.5);
+    CHECK(err_proxy < err_full + 1.0);
+
+    // The same proxy width reuses the preparation; its result is the same.
+    auto again = build_fit_data(p, proxy_opts, log_again);
+    CHECK(logged(log_again, "prepare: reusing"));
+    CHECK(torch::allclose(again->radius, proxy->radius, 1e-5, 1e-5));
+    CHECK(torch::equal(again->to_ref, proxy->to_ref));
 }

@@ -12,6 +12,7 @@
 
 #include "io/image_file.h"
 #include "prepare/prepare.h"
+#include "prepare/proxy.h"
 #include "project/project.h"
 #include "synth/synth.h"
 #include "test_util.h"
@@ -646,4 +647,71 @@ TEST_CASE("masks: a slow subject under hunting focus is found (synth hunt)") {
                                                                << ", worst frame " << worst);
     CHECK(sum / so.frames > 0.6);
     CHECK(worst > 0.3);
+}
+
+TEST_CASE("proxy: sizes, and homographies and flow carried from a proxy to the full size") {
+    const ProxySize same = proxy_size(320, 180, 640);
+    CHECK_FALSE(same.active());
+    CHECK((same.width == 320 && same.height == 180));
+    CHECK_FALSE(proxy_size(1920, 1080, 0).active());
+    const ProxySize hd = proxy_size(1920, 1080, 640);
+    CHECK((hd.width == 640 && hd.height == 360 && hd.sx == 3 && hd.sy == 3));
+    const ProxySize odd = proxy_size(1000, 333, 300);  // 99.9 rounds to 100
+    CHECK((odd.width == 300 && odd.height == 100));
+    CHECK_THROWS_AS(proxy_size(0, 10, 640), Error);
+    CHECK_THROWS_AS(proxy_size(10, 10, -1), Error);
+
+    // S·H_p·S⁻¹ carries a proxy point's image to the full-size point's image.
+    Homography hp;
+    hp.m = {1.01, 0.02, 3.5, -0.015, 0.99, -2.25, 1e-4, -2e-4, 1};
+    const double sx = 3, sy = 2.5;
+    const Homography hf = scale_homography(hp, sx, sy);
+    double worst = 0;
+    for (double xp : {0.0, 17.5, 99.0})
+        for (double yp : {0.0, 40.25, 59.0}) {
+            double qx, qy, fx, fy;
+            hp.apply(xp, yp, qx, qy);
+            hf.apply(sx * xp + (sx - 1) / 2, sy * yp + (sy - 1) / 2, fx, fy);
+            worst = std::max(
+                worst, std::hypot(fx - (sx * qx + (sx - 1) / 2), fy - (sy * qy + (sy - 1) / 2)));
+        }
+    CHECK(worst < 1e-9);
+
+    // A pan and zoom prepared on its half-size proxy: the scaled-up homographies against the
+    // truth at full size, and the flow's vectors in full-size px.
+    const int w = 256, h = 144, n = 5;
+    PanClip clip = pan_zoom_clip(w, h, n);
+    const ProxySize px = proxy_size(w, h, 128);
+    std::vector<Image> small;
+    for (const Image& f : clip.frames) small.push_back(resize_image(f, px.width, px.height));
+    PrepareOptions opts;
+    opts.estimate_coc = false;
+    PrepareLog log;
+    const PrepareResult pr = prepare_clip(small, opts, log);
+    const PrepareResult full = scale_prepare(pr, w, h);
+    REQUIRE((full.width == w && full.height == h && full.flow.fwd[0].width == w));
+    double corner = 0;
+    const double cx[4] = {0, w - 1.0, 0, w - 1.0}, cy[4] = {0, 0, h - 1.0, h - 1.0};
+    for (int t = 0; t < n; ++t) {
+        const cv::Matx33d truth = clip.A[0].inv() * clip.A[t];
+        for (int i = 0; i < 4; ++i) {
+            const cv::Vec3d q = truth * cv::Vec3d(cx[i], cy[i], 1);
+            double ex, ey;
+            full.motion.to_reference[t].apply(cx[i], cy[i], ex, ey);
+            corner = std::max(corner, std::hypot(ex - q[0] / q[2], ey - q[1] / q[2]));
+        }
+    }
+    // Flow 0 → 1 at the frame's centre region, against frame 1's truth.
+    std::vector<float> err;
+    const cv::Matx33d to1 = clip.A[1].inv() * clip.A[0];
+    for (int y = h / 4; y < 3 * h / 4; y += 4)
+        for (int x = w / 4; x < 3 * w / 4; x += 4) {
+            const cv::Vec3d q = to1 * cv::Vec3d(x, y, 1);
+            err.push_back(float(std::hypot(x + full.flow.fwd[0].at(x, y, 0) - q[0] / q[2],
+                                           y + full.flow.fwd[0].at(x, y, 1) - q[1] / q[2])));
+        }
+    MESSAGE("pan/zoom 256x144 on a 128x72 proxy: worst corner error "
+            << corner << " px, median flow error " << median(err) << " px at full size");
+    CHECK(corner < 2.0);
+    CHECK(median(err) < 0.5);
 }

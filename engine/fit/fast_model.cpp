@@ -224,24 +224,42 @@ void FastModel::rescale(Atlas& a, double s) {
 void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
                                  bool affine, double max_shift, bool static_camera) {
     const int64_t T = m_data.frames, H = m_data.height, W = m_data.width;
-    auto grey = [&](const torch::Tensor& rgb) {  // [3,H,W] linear → sRGB luma, CV_32F
+    // ECC runs on a proxy at most align_width px wide: its window and iterations are tuned in
+    // px, and the reblur's cost would grow with the square of the scale twice over. Proxy pixel
+    // x_p is the frame's k·x_p + (k − 1)/2 (the mean of a k × k block).
+    const int64_t k = m_opts.align_width > 0
+                          ? std::max<int64_t>(1, (W + m_opts.align_width - 1) / m_opts.align_width)
+                          : 1;
+    const int64_t h = H / k, w = W / k;
+    torch::Tensor pixels = m_pixels;
+    if (k > 1) {
+        auto ys = torch::arange(h, torch::kFloat32) * double(k) + (k - 1) / 2.0,
+             xs = torch::arange(w, torch::kFloat32) * double(k) + (k - 1) / 2.0;
+        auto g = torch::meshgrid({ys, xs}, "ij");
+        pixels = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({h * w})}, 1);
+    }
+    auto shrink = [&](const torch::Tensor& x) {  // [C,H,W] → [C,h,w], block means
+        if (k == 1) return x;
+        return torch::avg_pool2d(x.narrow(1, 0, h * k).narrow(2, 0, w * k).unsqueeze(0), k)[0];
+    };
+    auto grey = [&](const torch::Tensor& rgb) {  // [3,h,w] linear → sRGB luma, CV_32F
         auto l = srgb_encode(rgb);
         l = (0.299 * l[0] + 0.587 * l[1] + 0.114 * l[2]).contiguous();
-        return cv::Mat(int(H), int(W), CV_32F, l.data_ptr<float>()).clone();
+        return cv::Mat(int(h), int(w), CV_32F, l.data_ptr<float>()).clone();
     };
     for (int round = 0; round < m_opts.align_rounds; ++round) {
         auto fused = fuse(a, weight).unsqueeze(0);
         std::vector<torch::Tensor> mats;
         for (int64_t t = 0; t < T; ++t) {
             auto m = a.to_atlas[t].to(torch::kFloat64);
-            auto p = torch::matmul(a.to_atlas[t], m_pixels.t());
-            auto px = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, H, W, 2});
+            auto p = torch::matmul(a.to_atlas[t], pixels.t());
+            auto px = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, h, w, 2});
             auto render = sample_bicubic(fused, to_grid(a, px))[0];
-            auto blurred =
-                lens_blur(render.contiguous(), m_data.radius[t].contiguous(), m_data.blur);
-            cv::Mat tmpl = grey(m_data.input[t]), moving = grey(blurred);
-            auto rmask = (region[t][0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
-            cv::Mat mask(int(H), int(W), CV_8U, rmask.data_ptr<uint8_t>());
+            auto radius = shrink(m_data.radius[t].unsqueeze(0))[0].div(double(k));
+            auto blurred = lens_blur(render.contiguous(), radius.contiguous(), m_data.blur);
+            cv::Mat tmpl = grey(shrink(m_data.input[t])), moving = grey(blurred);
+            auto rmask = (shrink(region[t])[0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
+            cv::Mat mask(int(h), int(w), CV_8U, rmask.data_ptr<uint8_t>());
             if (cv::countNonZero(mask) < 64) {
                 mats.push_back(m);
                 continue;
@@ -258,15 +276,17 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             } catch (const cv::Exception&) {
                 ok = false;  // no convergence: keep the mapping
             }
-            auto w = torch::eye(3, torch::kFloat64);
+            // The proxy's translation in frame px: k times (the block centres' offset cancels).
+            auto wf = torch::eye(3, torch::kFloat64);
             for (int r = 0; r < warp.rows; ++r)
-                for (int c = 0; c < 3; ++c) w[r][c] = double(warp.at<float>(r, c));
+                for (int c = 0; c < 3; ++c)
+                    wf[r][c] = double(warp.at<float>(r, c)) * (c == 2 ? double(k) : 1.0);
             // ECC maps template (input frame) pixels to the render's: frame x ↦ render w·x,
             // and the render pixel y sits at atlas m·y. Refuse corrections over max_shift px.
             double worst = 0;
             for (double cy : {0.0, double(H - 1)})
                 for (double cx : {0.0, double(W - 1)}) {
-                    auto q = torch::matmul(w, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+                    auto q = torch::matmul(wf, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
                     worst =
                         std::max(worst, std::hypot(q[0].item<double>() / q[2].item<double>() - cx,
                                                    q[1].item<double>() / q[2].item<double>() - cy));
@@ -290,7 +310,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             if (debug_enabled("align") && static_camera)
                 std::fprintf(stderr, "  static frame %lld: ECC coefficient %.4f -> %.4f\n",
                              (long long)t, rho0, rho1);
-            mats.push_back(ok && worst < max_shift ? torch::matmul(m, w) : m);
+            mats.push_back(ok && worst < max_shift ? torch::matmul(m, wf) : m);
         }
         a.to_atlas = torch::stack(mats).to(torch::kFloat32);
     }

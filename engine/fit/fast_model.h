@@ -43,6 +43,7 @@ struct FastModelOptions {
     double w_alpha_residual = 0.02;  // L1 on the per-frame alpha residual (logit)
     double alpha_shared_lr = 1.0;    // the shared matte's learning rate, times lr_alpha
     int align_rounds = 2;            // ECC refinement rounds at initialisation (0: off)
+    int align_width = 640;           // ... on frames shrunk to at most this wide (0: full size)
     bool static_align = true;        // ... also on a camera judged static (hand shake)
     double atlas_scale = 1;          // atlas px per frame px (FitData::atlas_scale); TV and the
                                      // residual warps stay in frame px

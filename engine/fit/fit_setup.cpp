@@ -16,6 +16,7 @@
 #include "io/image_file.h"
 #include "ops/lens_blur.h"
 #include "prepare/prepare.h"
+#include "prepare/proxy.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -97,6 +98,50 @@ void save_stack_radius(const Project& project, const torch::Tensor& radius, cons
             .dump(2));
 }
 
+// The focal-stack radius (stack_coc.h) of `d` estimated on its proxy (`small`, the motion
+// prepared there) and scaled up: bilinear, times the scale (its cost falls with the square of
+// the scale twice over: pixels, and the taps of blurs that shrink with them).
+torch::Tensor stack_radius_on_proxy(const FitData& d, const std::vector<Image>& small,
+                                    const CameraMotion& motion, const ProxySize& px,
+                                    const StackCocOptions& so, StackCocReport* report) {
+    namespace F = torch::nn::functional;
+    FitData p;
+    p.frames = d.frames, p.height = px.height, p.width = px.width;
+    p.input = stack_images(small);
+    p.blur = d.blur;
+    p.static_camera = d.static_camera;
+    p.has_subject = d.has_subject;
+    const double s = std::sqrt(px.sx * px.sy);
+    p.radius =
+        F::interpolate(d.radius.unsqueeze(1), F::InterpolateFuncOptions()
+                                                  .size(std::vector<int64_t>{px.height, px.width})
+                                                  .mode(torch::kArea))
+            .squeeze(1)
+            .div(s)
+            .contiguous();
+    if (d.mask.defined())
+        p.mask = F::interpolate(d.mask, F::InterpolateFuncOptions()
+                                            .size(std::vector<int64_t>{px.height, px.width})
+                                            .mode(torch::kArea))
+                     .contiguous();
+    std::vector<torch::Tensor> hs;
+    for (const auto& h : motion.to_reference)
+        hs.push_back(d.static_camera ? torch::eye(3, torch::kFloat64)
+                                     : torch::tensor(std::vector<double>(h.m.begin(), h.m.end()),
+                                                     torch::kFloat64)
+                                           .view({3, 3}));
+    p.to_ref = torch::stack(hs);
+    const torch::Tensor r = estimate_radius_from_stack(p, so, report);
+    return F::interpolate(r.unsqueeze(1), F::InterpolateFuncOptions()
+                                              .size(std::vector<int64_t>{d.height, d.width})
+                                              .mode(torch::kBilinear)
+                                              .align_corners(false))
+        .squeeze(1)
+        .mul(s)
+        .clamp_min(0)
+        .contiguous();
+}
+
 }  // namespace
 
 std::string choose_atlas_scale(FitData& d, bool radius_given, double forced) {
@@ -161,15 +206,27 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     std::vector<Image> frames;
     frames.reserve(project.frames);
     for (int t = 0; t < project.frames; ++t) frames.push_back(project.read_frame(t));
+    // Preparation runs on proxies of large frames (proxy.h); `small` holds them.
+    const ProxySize px = proxy_size(project.width, project.height, opts.proxy_width);
+    std::vector<Image> small;
+    if (px.active()) {
+        small.reserve(frames.size());
+        for (const Image& f : frames) small.push_back(resize_image(f, px.width, px.height));
+        log.info("prepare: on " + std::to_string(px.width) + "x" + std::to_string(px.height) +
+                 " proxies (prepare.proxy_width), scaled up to " + std::to_string(project.width) +
+                 "x" + std::to_string(project.height));
+    }
 
     PrepareResult prep;
     bool reuse = !opts.force_prepare && has_prepare(project);
     if (reuse) {
         log.stage("loading the preparation", 0.03, 0.2);
         prep = load_prepare(project);
-        // Reuse only what was prepared for the same masks and with a radius estimate if needed.
+        // Reuse only what was prepared for the same masks, at the same size, and with a radius
+        // estimate if needed.
         const std::string want_masks = opts.mask_path.empty() ? "auto" : opts.mask_path;
-        if (prep.mask_source != want_masks || (opts.coc_path.empty() && prep.coc.empty()))
+        if (prep.mask_source != want_masks || (opts.coc_path.empty() && prep.coc.empty()) ||
+            prep.width != px.width || prep.height != px.height)
             reuse = false;
         else
             log.info("prepare: reusing " + prepare_dir(project));
@@ -181,8 +238,9 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         po.motion.static_max_px = 2.0;
         po.mask_path = opts.mask_path;
         po.estimate_coc = opts.coc_path.empty();
+        po.full_width = project.width, po.full_height = project.height;
         log.set_span(0.03, 0.2);
-        prep = prepare_clip(frames, po, log);
+        prep = prepare_clip(px.active() ? small : frames, po, log);
         log.set_span(0.0, 1.0);
         log.stage("saving the preparation", 0.2, 0.23);
         save_prepare(project, prep);
@@ -190,6 +248,12 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         // and a reopened project (export, the studio, --resume) must rebuild the same model.
         for (Image& m : prep.masks)
             for (float& v : m.pixels) v = std::round(std::clamp(v, 0.0f, 1.0f) * 255.0f) / 255.0f;
+    }
+    const PrepareResult prep_proxy = px.active() ? prep : PrepareResult{};
+    if (px.active()) {
+        prep = scale_prepare(prep, project.width, project.height);
+        if (!opts.mask_path.empty())  // a roto matte is kept as drawn, at full size
+            prep.masks = load_masks(opts.mask_path, project.frames, project.width, project.height);
     }
 
     log.stage("radius maps", 0.23, 0.92);
@@ -286,7 +350,9 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                 StackCocReport report;
                 StackCocOptions so;
                 apply_settings(opts.settings, so);
-                d->radius = estimate_radius_from_stack(*d, so, &report);
+                d->radius = px.active() ? stack_radius_on_proxy(*d, small, prep_proxy.motion, px,
+                                                                so, &report)
+                                        : estimate_radius_from_stack(*d, so, &report);
                 d->fixed_focus_share = report.fixed_focus_share;
                 log.info("radius: " + report.summary);
                 try {

@@ -24,7 +24,10 @@ struct FitSetupOptions {
     // it: read_fit_settings).
     std::string kernel = "pillbox";
     double atlas_scale =
-        0;              // the fast preset's atlas texels per frame pixel; 0: choose_atlas_scale
+        0;  // the fast preset's atlas texels per frame pixel; 0: choose_atlas_scale
+    // Preparation (flow, motion, masks, the radius estimate) runs on frames at most this wide,
+    // its results scaled up (prepare/proxy.h); 0: at the clip's size.
+    int proxy_width = 640;
     Settings settings;  // the radius estimator's (radius.*) and the fields above, as set
 };
 

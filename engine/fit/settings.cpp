@@ -82,6 +82,9 @@ const std::vector<Field<FitSetupOptions>>& setup_fields() {
          {"pillbox", "disk"}},
         {"fast.atlas_scale", &O::atlas_scale, 0, 4,
          "atlas texels per frame pixel (0: chosen from the radius source and the camera)"},
+        {"prepare.proxy_width", &O::proxy_width, 0, 1e5,
+         "flow, camera motion, masks and the radius estimate run on frames at most this wide "
+         "(px), their results scaled up; 0: at the clip's size"},
     };
     return f;
 }
@@ -115,6 +118,8 @@ const std::vector<Field<FastModelOptions>>& fast_fields() {
         {"fast.warp_cell_px", &O::warp_cell_px, 4, 1024, "residual warp grid spacing (px)"},
         {"fast.align_rounds", &O::align_rounds, 0, 20,
          "ECC alignment rounds at initialisation (0: off)"},
+        {"fast.align_width", &O::align_width, 0, 1e5,
+         "... on frames shrunk to at most this wide (px; 0: full size)"},
         {"fast.static_align", &O::static_align, 0, 1,
          "a static camera's frames are aligned for hand shake"},
         {"fast.deblur_path", &O::deblur_path, 0, 1,

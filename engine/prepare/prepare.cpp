@@ -1,4 +1,5 @@
 #include "prepare/prepare.h"
+#include "prepare/proxy.h"
 
 #include <chrono>
 #include <cmath>
@@ -87,7 +88,10 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
     log.stage("subject masks", 0.5, 0.9);
     t0 = std::chrono::steady_clock::now();
     if (!opts.mask_path.empty()) {
-        res.masks = load_masks(opts.mask_path, n, w, h);
+        const int fw = opts.full_width > 0 ? opts.full_width : w;
+        const int fh = opts.full_height > 0 ? opts.full_height : h;
+        res.masks = load_masks(opts.mask_path, n, fw, fh);
+        for (Image& m : res.masks) m = resize_image(m, w, h);
         res.mask_source = opts.mask_path;
     } else {
         res.mask_source = "auto";
@@ -177,6 +181,13 @@ Image pack_flow(const Image& f, const Image& valid) {
     return p;
 }
 
+// A preparation of width × height serves the project: its own size, or a proxy's.
+bool made_for(const Project& project, int width, int height) {
+    if (width == project.width && height == project.height) return true;
+    const ProxySize p = proxy_size(project.width, project.height, width);
+    return width > 0 && p.width == width && p.height == height;
+}
+
 Image read_expect(const std::string& path, int t, int w, int h, int channels) {
     ImageReadResult r = read_image_file(path, false, NonFinitePolicy::Reject, t);
     if (r.image.width != w || r.image.height != h)
@@ -197,7 +208,7 @@ Image read_expect(const std::string& path, int t, int w, int h, int channels) {
 
 void save_prepare(const Project& project, const PrepareResult& r) {
     const std::string dir = prepare_dir(project);
-    if (r.width != project.width || r.height != project.height || r.frames != project.frames)
+    if (!made_for(project, r.width, r.height) || r.frames != project.frames)
         throw Error(file_error(dir, "preparation is for " + std::to_string(r.width) + "x" +
                                         std::to_string(r.height) + ", " + std::to_string(r.frames) +
                                         " frames; the project is " + std::to_string(project.width) +
@@ -266,7 +277,8 @@ PrepareResult load_prepare(const Project& project) {
         throw Error(file_error(jpath, std::string("not valid JSON: ") + e.what()));
     }
     PrepareResult r;
-    const int n = project.frames, w = project.width, h = project.height;
+    const int n = project.frames;
+    int w = project.width, h = project.height;
     auto field = [&](const char* what) -> std::string {
         return std::string("field '") + what + "'";
     };
@@ -279,7 +291,7 @@ PrepareResult load_prepare(const Project& project) {
         r.width = c.at("width").get<int>();
         r.height = c.at("height").get<int>();
         r.frames = c.at("frames").get<int>();
-        if (r.width != w || r.height != h || r.frames != n)
+        if (!made_for(project, r.width, r.height) || r.frames != n)
             throw Error(file_error(
                 jpath, "made for " + std::to_string(r.width) + "x" + std::to_string(r.height) +
                            ", " + std::to_string(r.frames) + " frames; the project is " +
@@ -332,6 +344,7 @@ PrepareResult load_prepare(const Project& project) {
         throw Error(file_error(jpath, std::string("missing or malformed field: ") + e.what()));
     }
     const bool has_coc = !j["files"]["coc"].is_null();
+    w = r.width, h = r.height;  // the files' size: the project's or its proxy's
 
     for (int t = 0; t + 1 < n; ++t) {
         for (int k = 0; k < 2; ++k) {

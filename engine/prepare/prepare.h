@@ -44,6 +44,9 @@ struct PrepareOptions {
     // 0.95: the estimator reads 92.5% of a perfectly sharp test frame below 0.5 px (corners
     // and close edges read up to ~1 px).
     double sharp_frame_frac = 0.9;
+    // The clip's size when the frames are proxies (proxy.h): given masks come at this size and
+    // are shrunk to the frames'. 0: the frames' size.
+    int full_width = 0, full_height = 0;
 };
 
 // What the fit may skip, decided per clip.
@@ -65,13 +68,15 @@ struct PrepareResult {
     std::vector<std::string> log;  // every line logged, in order
 };
 
-// Runs the stage on linear RGB frames of one size (at least 1).
+// Runs the stage on linear RGB frames of one size (at least 1): the clip's, or a proxy's
+// (proxy.h), and the result is at that size.
 PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOptions& opts,
                            PrepareLog& log);
 
 // prep/ of the project.
 std::string prepare_dir(const Project& project);
-// Writes prep/ (every file atomically, prepare.json last).
+// Writes prep/ (every file atomically, prepare.json last), at the size it was made at: the
+// project's or its proxy's for some proxy width. load_prepare reads either back.
 void save_prepare(const Project& project, const PrepareResult& result);
 // Reads and validates prep/ against the project (counts, sizes, channels); refocus::Error
 // names the file and what is wrong.
