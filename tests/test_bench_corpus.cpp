@@ -54,6 +54,24 @@ double input_psnr_from_pngs(const fs::path& clip, int frames) {
     return sum / frames;
 }
 
+// The largest channel's |mean(input) − mean(sharp)| over the frames, 8-bit codes from the PNGs.
+double input_shift_from_pngs(const fs::path& clip, int frames) {
+    double sum[2][3] = {};
+    size_t n = 0;
+    for (int t = 0; t < frames; ++t)
+        for (int k = 0; k < 2; ++k) {
+            char name[32];
+            std::snprintf(name, sizeof name, k ? "sharp_%04d.png" : "input_%04d.png", t);
+            const cv::Mat m = cv::imread((clip / name).string(), cv::IMREAD_COLOR);  // BGR
+            REQUIRE(!m.empty());
+            for (size_t i = 0; i < m.total() * 3; ++i) sum[k][2 - i % 3] += m.data[i];
+            if (k == 0) n += m.total();
+        }
+    double worst = 0;
+    for (int c = 0; c < 3; ++c) worst = std::max(worst, std::abs(sum[0][c] - sum[1][c]) / n);
+    return worst;
+}
+
 void make_clip(const fs::path& dir, const std::string& scene, const std::string& split) {
     RunResult r = cli("synth --scene " + scene + " -o '" + dir.string() +
                       "' --size 64x36 --frames 6 --seed 3");
@@ -97,7 +115,8 @@ TEST_CASE("bench corpus: one row per clip and a mean, the CSV, --split, bad corp
         for (const char* name :
              {"frames", "frames_done", "in_psnr", "out_psnr", "gain_psnr", "in_ssim", "out_ssim",
               "in_tpsnr", "out_tpsnr", "worst_gain", "in_psnr_inside", "out_psnr_inside",
-              "in_psnr_outside", "out_psnr_outside", "steps", "fit_s", "target_gain"}) {
+              "in_psnr_outside", "out_psnr_outside", "in_colour_shift", "out_colour_shift", "steps",
+              "fit_s", "target_gain"}) {
             INFO(name << " in row " << i);
             CHECK(std::isfinite(std::stod(rows[i][col(name)])));
         }
@@ -108,6 +127,9 @@ TEST_CASE("bench corpus: one row per clip and a mean, the CSV, --split, bad corp
     // The input's PSNR against the PNGs, computed here from their 8-bit codes.
     CHECK(std::abs(std::stod(rows[1][col("in_psnr")]) - input_psnr_from_pngs(corpus / "rack", 6)) <
           0.01);
+    // The colour shift of the input, computed here from the same PNGs.
+    CHECK(std::stod(rows[1][col("in_colour_shift")]) ==
+          doctest::Approx(input_shift_from_pngs(corpus / "rack", 6)).epsilon(1e-3));
     // The mean row: the clips' mean.
     CHECK(std::stod(rows[3][col("in_psnr")]) ==
           doctest::Approx(

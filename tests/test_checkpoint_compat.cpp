@@ -15,6 +15,7 @@
 #include "io/tensor_image.h"
 #include "project/project.h"
 #include "util/error.h"
+#include "util/mapped.h"
 #include "test_util.h"
 
 using namespace refocus;
@@ -252,4 +253,47 @@ TEST_CASE("preparation on a proxy: scaled up, it matches the full-size preparati
     CHECK(logged(log_again, "prepare: reusing"));
     CHECK(torch::allclose(again->radius, proxy->radius, 1e-5, 1e-5));
     CHECK(torch::equal(again->to_ref, proxy->to_ref));
+}
+
+TEST_CASE("a clip over fit.memory_mb streams its arrays through file mappings: the same fit") {
+    // The hunt clip with the budget at 0 MB: every per-frame array is a file mapping, trimmed
+    // from memory as the fit goes, and the fit is bit for bit the one in memory.
+    TinyClip c = make_tiny("fit_mapped_arrays", "hunt", "96x54");
+    const Project p = Project::load(c.project);
+    FitSetupOptions in_memory, mapped;
+    mapped.memory_mb = 0;
+    PrepareLog log_a, log_b;
+    auto a = build_fit_data(p, in_memory, log_a);
+    auto b = build_fit_data(p, mapped, log_b);
+    CHECK_FALSE(is_mapped(a->input));
+    REQUIRE(is_mapped(b->input));
+    CHECK(is_mapped(b->radius));
+    CHECK(mapped_bytes() >= int64_t(b->input.numel() * 4));
+    CHECK(torch::equal(a->input, b->input));
+    CHECK(torch::equal(a->radius, b->radius));
+    CHECK(torch::equal(a->to_ref, b->to_ref));
+    REQUIRE(a->has_subject == b->has_subject);
+    if (a->has_subject) {
+        CHECK(is_mapped(b->mask));
+        CHECK(torch::equal(a->mask, b->mask));
+    }
+    REQUIRE(a->flow_fwd.defined() == b->flow_fwd.defined());
+    if (a->flow_fwd.defined()) CHECK(torch::equal(a->flow_fwd, b->flow_fwd));
+    FitOptions o;
+    o.preset = "fast";
+    o.iters = 6;
+    o.seed = 3;
+    FitEngine ea(a, o), eb(b, o);
+    for (int i = 0; i < 6; ++i) {
+        ea.step();
+        eb.step();
+        trim_mapped();  // pages dropped between steps come back from the file
+    }
+    for (int t : {0, 7}) CHECK(torch::equal(ea.render_frame(t).sharp, eb.render_frame(t).sharp));
+    bool said = false;
+    for (const auto& line : log_b.lines()) said |= line.find("fit.memory_mb") != std::string::npos;
+    CHECK(said);
+    // A folder that cannot hold the working file is named.
+    CHECK_THROWS_WITH_AS(mapped_tensor({4, 4}, "/proc/refocus-cannot-be-here"),
+                         doctest::Contains("/proc/refocus-cannot-be-here"), Error);
 }

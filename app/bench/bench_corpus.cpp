@@ -38,6 +38,9 @@ struct ClipResult {
     int worst_frame = -1;
     // Mean over frames of the PSNR inside / outside the subject's mask; NaN without a mask.
     double in_inside = kNaN, out_inside = kNaN, in_outside = kNaN, out_outside = kNaN;
+    // Colour shift: the largest channel's |mean − the truth's mean| over the scored frames, in
+    // 8-bit sRGB codes (#35's target on a clip already in focus: 0.5).
+    double in_shift = kNaN, out_shift = kNaN;
 };
 
 std::string pass_file(const fs::path& dir, const char* pass, int t, const char* ext) {
@@ -123,10 +126,25 @@ struct ScratchDir {
 
 // The per-frame and masked figures on the frames the evaluation scored.
 void score_frames(const CorpusClip& c, const EvalFrames& f, ClipResult& r) {
-    r.worst_gain = kNaN;  // no frame done
+    r.worst_gain = kNaN;     // no frame done
+    double chan[3][3] = {};  // [truth, input, output][channel] sums, 8-bit codes
+    size_t count = 0;
     for (size_t i = 0; i < f.sharp.size(); ++i) {
         const double gain = psnr(f.sharp[i], f.gt[i]) - psnr(f.input[i], f.gt[i]);
         if (i == 0 || gain < r.worst_gain) r.worst_gain = gain, r.worst_frame = f.index[i];
+        const Image* imgs[3] = {&f.gt[i], &f.input[i], &f.sharp[i]};
+        for (int k = 0; k < 3; ++k) {
+            const Image e = to_metric_space(*imgs[k]);
+            for (size_t p = 0; p < e.pixels.size(); ++p) chan[k][p % e.channels] += e.pixels[p];
+        }
+        count += size_t(f.gt[i].width) * f.gt[i].height;
+    }
+    if (count > 0 && f.gt[0].channels >= 3) {
+        r.in_shift = r.out_shift = 0;
+        for (int ch = 0; ch < 3; ++ch) {
+            r.in_shift = std::max(r.in_shift, std::abs(chan[1][ch] - chan[0][ch]) / count);
+            r.out_shift = std::max(r.out_shift, std::abs(chan[2][ch] - chan[0][ch]) / count);
+        }
     }
     if (!c.has_alpha) return;
     double sum[4] = {0, 0, 0, 0};
@@ -208,6 +226,8 @@ enum Fig {
     kOutInside,
     kInOutside,
     kOutOutside,
+    kInShift,
+    kOutShift,
     kSteps,
     kSeconds,
     kTargetGain,
@@ -235,6 +255,8 @@ Figures figures_of(const CorpusClip& c, const ClipResult& r) {
             r.out_inside,
             r.in_outside,
             r.out_outside,
+            r.in_shift,
+            r.out_shift,
             double(x.step),
             x.minutes * 60,
             double(t.gain),
@@ -267,15 +289,15 @@ std::string num(double v, const char* fmt) {
 void print_header(int name_w) {
     std::printf("%*s", name_w + 23, "");
     const std::pair<const char*, int> groups[] = {
-        {"PSNR dB (gain)", 20}, {"SSIM", 13},         {"tPSNR dB", 13}, {"worst frame", 12},
-        {"inside mask", 13},    {"outside mask", 13}, {"fit", 0}};
+        {"PSNR dB (gain)", 20}, {"SSIM", 13},         {"tPSNR dB", 13},     {"worst frame", 12},
+        {"inside mask", 13},    {"outside mask", 13}, {"colour shift", 13}, {"fit", 0}};
     for (const auto& [label, width] : groups) std::printf(" | %-*s", width, label);
     std::printf("\n");
     std::printf(
         "%-*s %-5s %6s %9s | %6s %6s %6s | %6s %6s | %6s %6s | %6s %5s | %6s %6s | %6s %6s "
-        "| %6s %7s\n",
+        "| %6s %6s | %6s %7s\n",
         name_w, "clip", "split", "frames", "size", "in", "out", "gain", "in", "out", "in", "out",
-        "dB", "frame", "in", "out", "in", "out", "steps", "s");
+        "dB", "frame", "in", "out", "in", "out", "in", "out", "steps", "s");
 }
 
 void print_row(int name_w, const std::string& name, const std::string& split,
@@ -283,7 +305,7 @@ void print_row(int name_w, const std::string& name, const std::string& split,
                const std::string& worst_frame) {
     std::printf(
         "%-*s %-5s %6s %9s | %6s %6s %6s | %6s %6s | %6s %6s | %6s %5s | %6s %6s | %6s %6s | %6s "
-        "%7s\n",
+        "%6s | %6s %7s\n",
         name_w, name.c_str(), split.c_str(), frames.c_str(), size.c_str(),
         num(f[kInPsnr], "%.2f").c_str(), num(f[kPsnr], "%.2f").c_str(),
         num(f[kGain], "%+.2f").c_str(), num(f[kInSsim], "%.4f").c_str(),
@@ -291,6 +313,7 @@ void print_row(int name_w, const std::string& name, const std::string& split,
         num(f[kTpsnr], "%.2f").c_str(), num(f[kWorst], "%+.2f").c_str(), worst_frame.c_str(),
         num(f[kInInside], "%.2f").c_str(), num(f[kOutInside], "%.2f").c_str(),
         num(f[kInOutside], "%.2f").c_str(), num(f[kOutOutside], "%.2f").c_str(),
+        num(f[kInShift], "%.2f").c_str(), num(f[kOutShift], "%.2f").c_str(),
         num(f[kSteps], "%.0f").c_str(), num(f[kSeconds], "%.1f").c_str());
 }
 
@@ -332,7 +355,8 @@ std::string csv_text(const Run& run, const std::vector<CorpusClip>& clips,
     std::string csv =
         "clip,split,width,height,frames,frames_done,in_psnr,out_psnr,gain_psnr,in_ssim,out_ssim,"
         "in_tpsnr,out_tpsnr,worst_gain,worst_frame,in_psnr_inside,out_psnr_inside,"
-        "in_psnr_outside,out_psnr_outside,steps,fit_s,target_gain,target_worst,target_tpsnr,"
+        "in_psnr_outside,out_psnr_outside,in_colour_shift,out_colour_shift,steps,fit_s,target_gain,"
+        "target_worst,target_tpsnr,"
         "target_ssim,preset,radius\n";
     const std::string tail = run.preset + "," + (run.oracle ? "oracle" : "estimated");
     std::vector<Figures> all;

@@ -40,14 +40,19 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (m_opts.crop_px != 0 && m_opts.crop_px < 32)
         throw Error("fit: fit.crop_px must be 0 (whole frames) or at least 32 px (got " +
                     std::to_string(m_opts.crop_px) + ")");
-    if (!torch::isfinite(m_data->input).all().item<bool>())
-        throw Error("fit: the input frames contain NaN/Inf");
-    if (!torch::isfinite(m_data->radius).all().item<bool>() ||
-        (m_data->radius < 0).any().item<bool>())
-        throw Error("fit: the radius maps contain NaN/Inf or negative values");
     {
         torch::NoGradGuard g;
-        m_resid = torch::full({m_data->frames, 1, m_data->height, m_data->width}, -1.0f);
+        // Frame by frame: a long clip's arrays are file mappings (util/mapped.h), and a check
+        // over the whole clip at once would hold a clip-sized temporary.
+        for (int64_t t = 0; t < m_data->frames; ++t) {
+            if (!torch::isfinite(m_data->input[t]).all().item<bool>())
+                throw Error("fit: the input frames contain NaN/Inf");
+            if (!torch::isfinite(m_data->radius[t]).all().item<bool>() ||
+                (m_data->radius[t] < 0).any().item<bool>())
+                throw Error("fit: the radius maps contain NaN/Inf or negative values");
+        }
+        m_resid = m_data->clip_array({m_data->frames, 1, m_data->height, m_data->width});
+        m_resid.fill_(-1.0f);
     }
     build_model();
 }

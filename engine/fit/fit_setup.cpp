@@ -17,6 +17,7 @@
 #include "ops/lens_blur.h"
 #include "prepare/prepare.h"
 #include "prepare/proxy.h"
+#include "util/mapped.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -47,6 +48,13 @@ std::function<double(double)> coc_to_kernel_table(const std::vector<Image>& maps
     };
 }
 
+// The median of a clip-sized array from about a million of its values, evenly strided (the
+// whole array's sort would be a clip-sized temporary).
+float sampled_median(const torch::Tensor& x) {
+    const int64_t n = x.numel(), step = std::max<int64_t>(1, n / (1 << 20));
+    return x.reshape({-1}).slice(0, 0, n, step).median().item<float>();
+}
+
 // The focal-stack radius (slow to compute) is cached in prep/ beside what it was computed
 // from: prep/stack_coc_%04d.exr and prep/stack_coc.json (written last) holding a key of its
 // inputs (prepare.json's content, the layer decision). Opening a fitted project, exporting and
@@ -74,13 +82,13 @@ torch::Tensor load_stack_radius(const Project& project, const FitData& d, const 
         const auto j = nlohmann::json::parse(read_text_file(meta));
         if (j.value("key", "") != key) return {};
         fixed_focus_share = j.value("fixed_focus_share", 0.0);
-        std::vector<Image> maps;
+        torch::Tensor maps = d.clip_array({d.frames, d.height, d.width});
         for (int t = 0; t < d.frames; ++t) {
             Image m = read_image_file(stack_frame_path(project, t).string(), false).image;
             if (m.width != d.width || m.height != d.height || m.channels != 1) return {};
-            maps.push_back(std::move(m));
+            maps[t].copy_(image_to_tensor(m)[0]);
         }
-        return stack_images(maps).squeeze(1).contiguous();
+        return maps;
     } catch (const std::exception&) {
         return {};  // a damaged cache is recomputed
     }
@@ -132,14 +140,16 @@ torch::Tensor stack_radius_on_proxy(const FitData& d, const std::vector<Image>& 
                                            .view({3, 3}));
     p.to_ref = torch::stack(hs);
     const torch::Tensor r = estimate_radius_from_stack(p, so, report);
-    return F::interpolate(r.unsqueeze(1), F::InterpolateFuncOptions()
-                                              .size(std::vector<int64_t>{d.height, d.width})
-                                              .mode(torch::kBilinear)
-                                              .align_corners(false))
-        .squeeze(1)
-        .mul(s)
-        .clamp_min(0)
-        .contiguous();
+    torch::Tensor out = d.clip_array({d.frames, d.height, d.width});
+    for (int64_t t = 0; t < d.frames; ++t)
+        out[t].copy_(F::interpolate(r.narrow(0, t, 1).unsqueeze(1),
+                                    F::InterpolateFuncOptions()
+                                        .size(std::vector<int64_t>{d.height, d.width})
+                                        .mode(torch::kBilinear)
+                                        .align_corners(false))[0][0]
+                         .mul(s)
+                         .clamp_min(0));
+    return out;
 }
 
 }  // namespace
@@ -203,19 +213,36 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     // Progress: the steps' shares are the sample clip's timings (320x180, 30 frames, radius
     // from the focal stack: 70% of the time), rough for any other clip.
     log.stage("reading the frames", 0.0, 0.03);
-    std::vector<Image> frames;
-    frames.reserve(project.frames);
-    for (int t = 0; t < project.frames; ++t) frames.push_back(project.read_frame(t));
-    // Preparation runs on proxies of large frames (proxy.h); `small` holds them.
+    const int64_t T = project.frames, H = project.height, W = project.width;
+    auto d = std::make_shared<FitData>();
+    d->frames = int(T), d->height = int(H), d->width = int(W);
+    // A clip whose frames exceed the budget keeps its per-frame arrays in file mappings
+    // (util/mapped.h) in the project's work/ folder: its memory then does not grow with it.
+    const double frames_mb = double(T) * 3 * H * W * sizeof(float) / (1 << 20);
+    if (frames_mb > opts.memory_mb) {
+        d->mapped_dir = project.dir / "work";
+        start_mapped_trimmer();
+        log.info("memory: the clip's frames take " + std::to_string(int(frames_mb)) +
+                 " MB (over fit.memory_mb); its per-frame arrays stream through " +
+                 d->mapped_dir.string());
+    }
+    // Preparation runs on proxies of large frames (proxy.h): `small` holds them, and the
+    // full-size frames go straight to the fit's input.
     const ProxySize px = proxy_size(project.width, project.height, opts.proxy_width);
-    std::vector<Image> small;
-    if (px.active()) {
-        small.reserve(frames.size());
-        for (const Image& f : frames) small.push_back(resize_image(f, px.width, px.height));
+    std::vector<Image> frames, small;
+    d->input = d->clip_array({T, 3, H, W});
+    for (int t = 0; t < T; ++t) {
+        Image f = project.read_frame(t);
+        d->input[t].copy_(image_to_tensor(f));
+        if (px.active())
+            small.push_back(resize_image(f, px.width, px.height));
+        else
+            frames.push_back(std::move(f));
+    }
+    if (px.active())
         log.info("prepare: on " + std::to_string(px.width) + "x" + std::to_string(px.height) +
                  " proxies (prepare.proxy_width), scaled up to " + std::to_string(project.width) +
                  "x" + std::to_string(project.height));
-    }
 
     PrepareResult prep;
     bool reuse = !opts.force_prepare && has_prepare(project);
@@ -249,19 +276,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         for (Image& m : prep.masks)
             for (float& v : m.pixels) v = std::round(std::clamp(v, 0.0f, 1.0f) * 255.0f) / 255.0f;
     }
-    const PrepareResult prep_proxy = px.active() ? prep : PrepareResult{};
-    if (px.active()) {
-        prep = scale_prepare(prep, project.width, project.height);
-        if (!opts.mask_path.empty())  // a roto matte is kept as drawn, at full size
-            prep.masks = load_masks(opts.mask_path, project.frames, project.width, project.height);
-    }
-
+    std::vector<Image>().swap(frames);  // prepared: the fit reads d->input
     log.stage("radius maps", 0.23, 0.92);
-    auto d = std::make_shared<FitData>();
-    d->frames = project.frames;
-    d->height = project.height;
-    d->width = project.width;
-    d->input = stack_images(frames);
     d->blur = fit_kernel_params(opts.kernel);
     log.info("kernel: " + opts.kernel +
              (opts.kernel == "pillbox" ? " (a uniform disk, seed 001 eq. 1.13)"
@@ -279,23 +295,30 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         log.info("radius: given per frame by " + opts.coc_path + " (circles of confusion; as the " +
                  "kernel's radius, 3 px is " + fmt2(kernel_radius_for_coc(3.0, d->blur)) +
                  ", 7 px is " + fmt2(kernel_radius_for_coc(7.0, d->blur)) + ")");
-    } else {
-        radius = prep.coc;
     }
-    d->radius = stack_images(radius).squeeze(1).contiguous();
+    // The preparation's results at full size, frame by frame (scaled up from the proxy).
+    d->radius = d->clip_array({T, H, W});
+    for (int t = 0; t < T && (!radius.empty() || !prep.coc.empty()); ++t)
+        d->radius[t].copy_(
+            image_to_tensor(radius.empty() ? scale_radius(prep.coc[t], W, H) : radius[t])[0]);
+    radius.clear();
     d->static_camera = prep.decisions.static_camera;
     // A locked-off camera maps every frame onto the reference exactly: the estimated
     // homographies' sub-pixel noise would only add flicker.
     std::vector<torch::Tensor> hs;
-    for (const auto& h : prep.motion.to_reference)
+    for (const auto& h : scale_motion(prep.motion, px.sx, px.sy).to_reference)
         hs.push_back(d->static_camera ? torch::eye(3, torch::kFloat64)
                                       : torch::tensor(std::vector<double>(h.m.begin(), h.m.end()),
                                                       torch::kFloat64)
                                             .view({3, 3}));
     d->to_ref = torch::stack(hs);
     if (!prep.flow.fwd.empty()) {
-        d->flow_fwd = stack_images(prep.flow.fwd).narrow(1, 0, 2).contiguous();
-        d->flow_valid = stack_images(prep.flow.fwd_valid).narrow(1, 0, 1).contiguous();
+        d->flow_fwd = d->clip_array({T - 1, 2, H, W});
+        d->flow_valid = d->clip_array({T - 1, 1, H, W});
+        for (int t = 0; t + 1 < T; ++t) {
+            d->flow_fwd[t].copy_(image_to_tensor(scale_flow(prep.flow.fwd[t], W, H)));
+            d->flow_valid[t].copy_(image_to_tensor(scale_binary(prep.flow.fwd_valid[t], W, H)));
+        }
     }
     d->has_subject = prep.decisions.has_subject && !prep.masks.empty();
     if (d->has_subject && opts.mask_path.empty()) {
@@ -316,7 +339,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         std::vector<double> steps;
         for (size_t i = 1; i < c.size(); ++i)
             steps.push_back(std::hypot(c[i].first - c[i - 1].first, c[i].second - c[i - 1].second));
-        const double diag = std::hypot(project.width, project.height);
+        const double diag = std::hypot(prep.width, prep.height);  // the masks' own size
         double median = 0;
         if (!steps.empty()) {
             std::nth_element(steps.begin(), steps.begin() + steps.size() / 2, steps.end());
@@ -334,7 +357,15 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         }
     }
     if (d->has_subject) {
-        d->mask = stack_images(prep.masks);
+        // A roto matte is kept as drawn, at full size; automatic masks are scaled up.
+        const std::vector<Image> roto =
+            px.active() && !opts.mask_path.empty()
+                ? load_masks(opts.mask_path, project.frames, project.width, project.height)
+                : std::vector<Image>{};
+        d->mask = d->clip_array({T, 1, H, W});
+        for (int t = 0; t < T; ++t)
+            d->mask[t].copy_(
+                image_to_tensor(roto.empty() ? resize_image(prep.masks[t], W, H) : roto[t]));
         if (prep.mask_source == "auto") {  // a roto matte is kept as given
             d->mask_as_stored = d->mask;
             log.info(clean_subject_masks(*d));
@@ -350,9 +381,11 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                 StackCocReport report;
                 StackCocOptions so;
                 apply_settings(opts.settings, so);
-                d->radius = px.active() ? stack_radius_on_proxy(*d, small, prep_proxy.motion, px,
-                                                                so, &report)
-                                        : estimate_radius_from_stack(*d, so, &report);
+                d->radius = px.active()
+                                ? stack_radius_on_proxy(*d, small, prep.motion, px, so, &report)
+                                : estimate_radius_from_stack(*d, so, &report);
+                if (!d->mapped_dir.empty() && !is_mapped(d->radius))
+                    d->radius = d->clip_array(d->radius.sizes()).copy_(d->radius);
                 d->fixed_focus_share = report.fixed_focus_share;
                 log.info("radius: " + report.summary);
                 try {
@@ -363,7 +396,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             }
             log.info(std::string("radius: ") + (cached.defined() ? "reused from prep/, " : "") +
                      "estimated per frame from the clip as a focal stack (median " +
-                     std::to_string(d->radius.median().item<float>()).substr(0, 4) + " px)");
+                     std::to_string(sampled_median(d->radius)).substr(0, 4) + " px)");
         } else {
             log.info("radius: estimated per frame (edge reblur ratio, guided filter)");
         }

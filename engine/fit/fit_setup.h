@@ -28,6 +28,9 @@ struct FitSetupOptions {
     // Preparation (flow, motion, masks, the radius estimate) runs on frames at most this wide,
     // its results scaled up (prepare/proxy.h); 0: at the clip's size.
     int proxy_width = 640;
+    // A clip whose frames (float) exceed this many MB keeps its per-frame arrays in file
+    // mappings (util/mapped.h, FitData::mapped_dir).
+    double memory_mb = 512;
     Settings settings;  // the radius estimator's (radius.*) and the fields above, as set
 };
 

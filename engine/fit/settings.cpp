@@ -82,6 +82,9 @@ const std::vector<Field<FitSetupOptions>>& setup_fields() {
          {"pillbox", "disk"}},
         {"fast.atlas_scale", &O::atlas_scale, 0, 4,
          "atlas texels per frame pixel (0: chosen from the radius source and the camera)"},
+        {"fit.memory_mb", &O::memory_mb, 0, 1e9,
+         "a clip whose frames take more than this (MB, float) streams its per-frame arrays "
+         "through file mappings in the project's work/ folder"},
         {"prepare.proxy_width", &O::proxy_width, 0, 1e5,
          "flow, camera motion, masks and the radius estimate run on frames at most this wide "
          "(px), their results scaled up; 0: at the clip's size"},

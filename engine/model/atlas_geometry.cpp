@@ -245,7 +245,9 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
     const bool debug = debug_enabled("masks");
     int dropped = 0, filled = 0;
     std::vector<double> area(T, 0.0);
-    std::vector<torch::Tensor> kept;
+    // The cleaned masks, frame by frame into a clip array (a long clip's need not fit in memory);
+    // d.mask itself is left as it was (mask_as_stored may share it).
+    torch::Tensor kept = d.clip_array(d.mask.sizes());
     for (int64_t t = 0; t < T; ++t) {
         cv::Mat m(int(H), int(W), CV_8U, const_cast<uint8_t*>(mb + t * H * W));
         cv::Mat labels, stats, centroids;
@@ -286,7 +288,7 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
         // Kept parts with their soft edge (the mask's values within 2 px of them).
         cv::dilate(keep, keep, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
         auto kt = torch::from_blob(keep.data, {1, H, W}, torch::kUInt8).to(torch::kFloat32) / 255.0;
-        kept.push_back(d.mask[t] * kt);
+        kept[t].copy_(d.mask[t] * kt);
     }
     // A frame whose mask lost most of the subject (under 30% of the clip's median area, at the
     // subject's size in that frame) takes the nearest frame's that holds it (over 50%), moved
@@ -330,11 +332,11 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
                              "onto it %.0f px\n",
                              (long long)t, area[t], med * sc[t] * sc[t], (long long)u, moved_area);
             if (moved_area < 2.0 * area[t] || moved_area < 16) continue;
-            kept[t] = moved;
+            kept[t].copy_(moved);
             ++filled;
         }
     }
-    d.mask = torch::stack(kept).contiguous();
+    d.mask = kept;
     char line[240];
     std::snprintf(
         line, sizeof line,

@@ -3,8 +3,13 @@
 #include <torch/torch.h>
 
 #include "util/error.h"
+#include "util/mapped.h"
 
 namespace refocus {
+
+torch::Tensor FitData::clip_array(at::IntArrayRef shape) const {
+    return mapped_dir.empty() ? torch::zeros(shape) : mapped_tensor(shape, mapped_dir);
+}
 
 void FitModel::load_state(const std::map<std::string, torch::Tensor>& s) {
     torch::NoGradGuard g;

@@ -48,6 +48,12 @@ struct FitData {
     bool legacy_track_gaps = false;
     torch::Tensor mask_as_stored;  // [T,1,H,W] the automatic masks before clean_subject_masks
 
+    // Where clip-sized arrays live (util/mapped.h): empty, in memory; else in file mappings in
+    // this folder (build_fit_data sets it for a clip whose frames exceed fit.memory_mb).
+    fs::path mapped_dir;
+    // A zero-filled float array for per-frame data ([T, ...]): mapped when mapped_dir is set.
+    torch::Tensor clip_array(at::IntArrayRef shape) const;
+
     const torch::Tensor& layer_radius(bool foreground) const {
         const torch::Tensor& r = foreground ? radius_fg : radius_bg;
         return r.defined() ? r : radius;

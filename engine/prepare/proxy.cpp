@@ -45,10 +45,8 @@ Homography scale_homography(const Homography& h, double sx, double sy) {
     return out;
 }
 
-namespace {
-
-// A flow field resized to width × height, its vectors in full-size px.
-Image scale_flow(const Image& f, int width, int height, double sx, double sy) {
+Image scale_flow(const Image& f, int width, int height) {
+    const double sx = double(width) / f.width, sy = double(height) / f.height;
     Image out = resize_image(f, width, height);
     for (size_t i = 0; i < out.pixels.size(); i += 2) {
         out.pixels[i] = float(out.pixels[i] * sx);
@@ -63,30 +61,36 @@ Image scale_binary(const Image& m, int width, int height) {
     return out;
 }
 
-}  // namespace
+Image scale_radius(const Image& r, int width, int height) {
+    // A radius in px grows with the frame; the estimate's resolution does not (docs/method.md,
+    // Preparation).
+    const float s = float(std::sqrt(double(width) / r.width * double(height) / r.height));
+    Image out = resize_image(r, width, height);
+    for (float& v : out.pixels) v = std::max(0.0f, v * s);
+    return out;
+}
+
+CameraMotion scale_motion(const CameraMotion& motion, double sx, double sy) {
+    CameraMotion m = motion;
+    for (auto& h : m.to_reference) h = scale_homography(h, sx, sy);
+    for (auto& h : m.pair) h = scale_homography(h, sx, sy);
+    m.max_displacement_px *= std::max(sx, sy);
+    return m;
+}
 
 PrepareResult scale_prepare(const PrepareResult& p, int width, int height) {
     if (p.width == width && p.height == height) return p;
-    const double sx = double(width) / p.width, sy = double(height) / p.height;
     PrepareResult r = p;
     r.width = width, r.height = height;
     for (size_t t = 0; t < p.flow.fwd.size(); ++t) {
-        r.flow.fwd[t] = scale_flow(p.flow.fwd[t], width, height, sx, sy);
-        r.flow.bwd[t] = scale_flow(p.flow.bwd[t], width, height, sx, sy);
+        r.flow.fwd[t] = scale_flow(p.flow.fwd[t], width, height);
+        r.flow.bwd[t] = scale_flow(p.flow.bwd[t], width, height);
         r.flow.fwd_valid[t] = scale_binary(p.flow.fwd_valid[t], width, height);
         r.flow.bwd_valid[t] = scale_binary(p.flow.bwd_valid[t], width, height);
     }
-    for (auto& h : r.motion.to_reference) h = scale_homography(h, sx, sy);
-    for (auto& h : r.motion.pair) h = scale_homography(h, sx, sy);
-    r.motion.max_displacement_px *= std::max(sx, sy);
+    r.motion = scale_motion(p.motion, double(width) / p.width, double(height) / p.height);
     for (auto& m : r.masks) m = resize_image(m, width, height);
-    // A radius in px grows with the frame; the estimate's resolution does not (docs/method.md,
-    // Preparation).
-    const float s = float(std::sqrt(sx * sy));
-    for (auto& c : r.coc) {
-        c = resize_image(c, width, height);
-        for (float& v : c.pixels) v = std::max(0.0f, v * s);
-    }
+    for (auto& c : r.coc) c = scale_radius(c, width, height);
     return r;
 }
 

@@ -31,6 +31,15 @@ Image resize_image(const Image& img, int width, int height);
 // H at full size for a homography H_p between proxy frames: S·H_p·S⁻¹.
 Homography scale_homography(const Homography& h, double sx, double sy);
 
+// One result at width × height, frame by frame (a long clip's full-size results need not all be
+// in memory at once): a flow field with its vectors times the scale; a 0/1 map resized and
+// thresholded at ½; a radius map resized and times the scale; the motion's homographies
+// conjugated and its corner motion scaled.
+Image scale_flow(const Image& flow, int width, int height);
+Image scale_binary(const Image& map, int width, int height);
+Image scale_radius(const Image& radius, int width, int height);
+CameraMotion scale_motion(const CameraMotion& motion, double sx, double sy);
+
 // The preparation `p`, made at a proxy, at width × height: flow vectors and radii times the
 // scale, homographies conjugated, masks and consistency resized (consistency thresholded at ½).
 // Returns `p` itself when the sizes agree.

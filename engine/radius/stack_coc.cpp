@@ -577,11 +577,11 @@ void split_radius_by_layer(FitData& d, int margin) {
     if (!d.has_subject || !d.mask.defined()) return;
     torch::NoGradGuard no_grad;
     auto r = d.radius.unsqueeze(1);  // [T,1,H,W]
-    auto fg = (d.mask > 0.5).to(torch::kFloat32);
-    auto sure_fg = erode(fg, margin), sure_bg = erode(1.0 - fg, margin);
-    std::vector<torch::Tensor> rf, rb;
+    // Frame by frame, into clip arrays: a long clip's maps need not fit in memory.
+    auto out_fg = d.clip_array(d.radius.sizes()), out_bg = d.clip_array(d.radius.sizes());
     for (int64_t t = 0; t < d.frames; ++t) {
-        auto keep_fg = sure_fg[t].unsqueeze(0), keep_bg = sure_bg[t].unsqueeze(0);
+        const auto fg = (d.mask.narrow(0, t, 1) > 0.5).to(torch::kFloat32);  // [1,1,H,W]
+        auto keep_fg = erode(fg, margin), keep_bg = erode(1.0 - fg, margin);
         torch::Tensor fg_region;  // where the subject's radius applies (undefined: everywhere)
         // An automatic mask is a blob around a blurred subject (wider than the silhouette by
         // about the blur, and missing a part here and there): the map inside it holds the wall's
@@ -589,9 +589,9 @@ void split_radius_by_layer(FitData& d, int margin) {
         // part. The subject's radius is read where the mask is surest (its core) and only
         // values near it stay the subject's; the same values next to the mask leave the wall's
         // (docs/method.md, Layered reblur).
-        const double area = fg[t].sum().item<double>();
+        const double area = fg.sum().item<double>();
         const int k = std::max(margin, int(0.3 * std::sqrt(area / M_PI)));
-        auto core = erode(fg[t].unsqueeze(0), k);
+        auto core = erode(fg, k);
         if (core.sum().item<double>() < 1) core = keep_fg;
         if (core.sum().item<double>() >= 1) {
             const auto rt = r[t].unsqueeze(0);
@@ -602,29 +602,28 @@ void split_radius_by_layer(FitData& d, int margin) {
             keep_fg = fg_kept.sum().item<double>() >= 1 ? fg_kept : core;
             const int reach = std::max(margin, int(std::sqrt(area / M_PI)));
             auto near =
-                F::max_pool2d(fg[t].unsqueeze(0),
-                              F::MaxPool2dFuncOptions(2 * reach + 1).stride(1).padding(reach));
+                F::max_pool2d(fg, F::MaxPool2dFuncOptions(2 * reach + 1).stride(1).padding(reach));
             auto bg_kept = keep_bg * (1.0 - near * like_subject);
             if (bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
             // Far from the mask the subject's layer is transparent and its radius only costs
             // time (the lens blur scatters every source pixel over its radius): there it takes
             // the visible surface's (docs/method.md, Layered reblur).
             const int far = reach + int(std::ceil(r_core)) + 2;
-            fg_region = F::max_pool2d(fg[t].unsqueeze(0),
-                                      F::MaxPool2dFuncOptions(2 * far + 1).stride(1).padding(far));
+            fg_region =
+                F::max_pool2d(fg, F::MaxPool2dFuncOptions(2 * far + 1).stride(1).padding(far));
         }
         // A frame without a sure pixel of a layer keeps the visible surface's map for it.
         auto one = [&](const torch::Tensor& sure) {
             return sure.sum().item<double>() > 0 ? fill_from(r[t].unsqueeze(0), sure)[0][0]
                                                  : d.radius[t];
         };
-        rf.push_back(fg_region.defined()
-                         ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), d.radius[t])
-                         : one(keep_fg));
-        rb.push_back(one(keep_bg));
+        out_fg[t].copy_(fg_region.defined()
+                            ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), d.radius[t])
+                            : one(keep_fg));
+        out_bg[t].copy_(one(keep_bg));
     }
-    d.radius_fg = torch::stack(rf).contiguous();
-    d.radius_bg = torch::stack(rb).contiguous();
+    d.radius_fg = out_fg;
+    d.radius_bg = out_bg;
 }
 
 torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& o,
