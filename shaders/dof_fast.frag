@@ -1,0 +1,68 @@
+#version 330 core
+// Fast depth of field, pass 6 (full resolution): each layer, then  out = F̂ + (1 − Â)·B̂.
+// Per pixel, by its tile's dilated radius R (dof_fast_dilate):
+//   R < ½               the pixel itself (early pass-through; exact);
+//   R ≤ u_small_radius  the exact gather (gather_exact, dof.frag's loop; at most 29 taps);
+//   larger              the pixel's own term at full resolution plus the half-resolution sums
+//                       of the others (dof_fast_gather, upsampled bilinearly) and the
+//                       highlight sprites (dof_sprite), normalised as the exact gather is:
+//     (F̂, Â) = (w_p·(a·c_g, a)_p + S_c + X, S_a) / (w_p + S_w),
+//     w_p = k(r_p)·min(r_p + ½, 1)/K(r_p) (paper eq. 2 at ρ = 0, K from the exact table).
+//   Keeping the own term sharp is what stops a sharp pixel next to a blurred area from going
+//   soft, and what a bilateral upsample would otherwise have to guess.
+// A foreground tile that no foreground colour reaches (A_fg = 0) is (0, 0), as the exact sum is.
+#include "preview_lib.glsl"
+#include "dof_gather_lib.glsl"
+#include "dof_fast_lib.glsl"
+
+uniform sampler2D u_bg_prep0_tx;  // (c', r)
+uniform sampler2D u_bg_prep1_tx;  // (1, 1/K)
+uniform sampler2D u_fg_prep0_tx;  // (a·c', r)
+uniform sampler2D u_fg_prep1_tx;  // (a, 1/K)
+uniform sampler2D u_tiles_tx;     // dof_fast_dilate: (R_bg, R_fg, A_fg, 0)
+uniform sampler2D u_shape_tx;     // exact ρ table, centre (u_window, u_window)
+uniform sampler2D u_bg_sum_tx;    // half res, bilinear: (Σ w·c_g, Σ w)
+uniform sampler2D u_bg_weight_tx; // half res, bilinear: (Σ w, …)
+uniform sampler2D u_fg_sum_tx;    // half res, bilinear: (Σ w·a·c_g, Σ w·a)
+uniform sampler2D u_fg_weight_tx; // half res, bilinear: (Σ w, …)
+uniform sampler2D u_bg_sprite_tx; // full res: (Σ w·excess, 0)
+uniform sampler2D u_fg_sprite_tx; // full res: (Σ w·a·excess, 0)
+uniform int u_tile_size;
+uniform int u_window;
+uniform float u_beta;
+uniform float u_small_radius;
+uniform float u_highlight_level;
+uniform float u_sprite_min_radius;
+
+layout(location = 0) out vec4 o_color;
+
+vec4 resolve(sampler2D prep0_tx, sampler2D prep1_tx, sampler2D sum_tx, sampler2D weight_tx,
+             sampler2D sprite_tx, ivec2 p, float big_r) {
+    if (big_r <= u_small_radius)
+        return gather_exact(prep0_tx, prep1_tx, u_shape_tx, p, big_r, u_window, u_beta);
+    vec4 p0 = texelFetch(prep0_tx, p, 0);
+    vec2 p1 = texelFetch(prep1_tx, p, 0).rg;
+    vec3 own = p0.rgb - highlight_excess(p0.rgb, p1.r, p0.a, u_highlight_level,
+                                         u_sprite_min_radius);
+    float w = disk_kernel(p0.a, u_beta) * min(p0.a + 0.5, 1.0) * p1.g;
+    vec2 uv = (vec2(p) + 0.5) / (2.0 * vec2(textureSize(sum_tx, 0)));
+    vec4 s = texture(sum_tx, uv);
+    float sw = texture(weight_tx, uv).r;
+    vec3 x = texelFetch(sprite_tx, p, 0).rgb;
+    float norm = 1.0 / (w + sw);
+    return vec4((w * own + s.rgb + x) * norm, (w * p1.r + s.a) * norm);
+}
+
+void main() {
+    ivec2 p = ivec2(gl_FragCoord.xy);
+    vec4 tile = texelFetch(u_tiles_tx, p / u_tile_size, 0);
+    vec4 b = resolve(u_bg_prep0_tx, u_bg_prep1_tx, u_bg_sum_tx, u_bg_weight_tx, u_bg_sprite_tx,
+                     p, tile.x);
+    vec4 f = vec4(0.0);
+    if (tile.z > 0.0)
+        f = resolve(u_fg_prep0_tx, u_fg_prep1_tx, u_fg_sum_tx, u_fg_weight_tx, u_fg_sprite_tx, p,
+                    tile.y);
+    vec3 c;
+    for (int k = 0; k < 3; ++k) c[k] = f[k] + (1.0 - f.a) * b[k];
+    o_color = vec4(c, 1.0);
+}
