@@ -31,11 +31,14 @@ double now_ms() {
     return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
 }
 
-// PSNR (dB) of `b` against `a`, peak 1 (linear light; highlights above 1 count in full).
+// PSNR (dB) of `b` against `a` as the viewer shows them: linear light clipped to [0, 1], peak 1.
 double psnr(const Image& a, const Image& b) {
     double se = 0.0;
-    for (size_t i = 0; i < a.size(); ++i)
-        se += double(a.pixels[i] - b.pixels[i]) * (a.pixels[i] - b.pixels[i]);
+    for (size_t i = 0; i < a.size(); ++i) {
+        const double d = std::min(std::max(a.pixels[i], 0.0f), 1.0f) -
+                         std::min(std::max(b.pixels[i], 0.0f), 1.0f);
+        se += d * d;
+    }
     const double mse = se / a.size();
     return mse > 0.0 ? 10.0 * std::log10(1.0 / mse) : 999.0;
 }
@@ -180,15 +183,25 @@ int main(int argc, char** argv) {
                     cpu_ms.push_back(now_ms() - t0);
                 }
                 double diff = 0.0, fast_max = 0.0;
+                size_t worst = 0;
                 for (size_t i = 0; i < exact.size(); ++i) {
                     if (cpu_twin)
                         diff = std::max(diff, double(std::fabs(cpu.pixels[i] - exact.pixels[i])));
-                    fast_max =
-                        std::max(fast_max, double(std::fabs(fast.pixels[i] - exact.pixels[i])));
+                    const double e = std::fabs(fast.pixels[i] - exact.pixels[i]);
+                    if (e > fast_max) {
+                        fast_max = e;
+                        worst = i / 3;
+                    }
                 }
                 std::printf("%-6.0f %-9s %10.1f %10.1f %9.1f %9.1f %10.1f %9.1f %11.3f %10.2e\n",
                             max_r, blades ? "6 blades" : "circle", ge, gf, 1000.0 / ge, 1000.0 / gf,
                             cpu_twin ? median(cpu_ms) : 0.0, psnr(exact, fast), fast_max, diff);
+                if (!dump.empty())
+                    std::printf(
+                        "  worst fast pixel (%zu, %zu): exact %.3f %.3f %.3f fast %.3f %.3f %.3f\n",
+                        worst % w, worst / w, exact.pixels[worst * 3], exact.pixels[worst * 3 + 1],
+                        exact.pixels[worst * 3 + 2], fast.pixels[worst * 3],
+                        fast.pixels[worst * 3 + 1], fast.pixels[worst * 3 + 2]);
                 if (!dump.empty()) {
                     const std::string stem =
                         dump + std::to_string(int(max_r)) + (blades ? "_hex_" : "_circle_");

@@ -2,19 +2,22 @@
 // Fast depth of field, pass 4 (half resolution, per layer): the sums of the exact gather
 // (dof.frag) over the sources other than the pixel itself, estimated with N samples of the
 // half-resolution sources on a golden-angle spiral that fills the disk of radius R + ½, R the
-// tile's dilated radius (so a large radius costs no more taps than a small one):
-//   S(p) = Σ_i A·w(p, q_i)·(a·c_g, a, 1)_{q_i},   A = π(R + ½)²/N, the area per sample,
+// tile's dilated radius (so a large radius costs no more taps than a small one), each sample the
+// half-resolution texel under it, the pixel's own 2×2 block left to dof_fast.frag:
+//   S(p) = Σ_{i≥1} A·w(p, q_i)·(a·c_g, a, 1)_{q_i},   A = π(R + ½)²/N, the area per sample
+//   (fast_sample_count; sample 0's core is the pixel's own term in dof_fast.frag),
 //   w(p, q) = k(r_q − ρ)·clamp(r_q − ρ + ½, 0, 1) / K(r_q)  (paper eq. 2; the *source's* radius
 //   decides whether it reaches p: scatter-as-gather), ρ = ρ_n(p − q) for n blades.
 // Sums, not averages: they are linear in the sources and smooth, so dof_fast.frag upsamples them
 // bilinearly and adds the pixel's own full-resolution term before normalising. Tiles with
 // R ≤ u_small_radius (gathered exactly at full resolution) or no foreground write 0.
-// Outputs: (Σ A·w·a·c_g, Σ A·w·a), (Σ A·w, 0, 0, 0).
+// Outputs: (Σ A·w·a·c_g, Σ A·w·a), (Σ A·w, 0, 0, 0); for the background a = 1, so the first
+// alone carries its sums.
 #include "preview_lib.glsl"
 #include "dof_fast_lib.glsl"
 
-uniform sampler2D u_src_tx;    // half res, (a·c_g, r), bilinear
-uniform sampler2D u_alpha_tx;  // half res, (a, …), bilinear (foreground)
+uniform sampler2D u_src_tx;    // half res, (a·c_g, r)
+uniform sampler2D u_alpha_tx;  // half res, (a, …) (foreground)
 uniform sampler2D u_tiles_tx;  // dof_fast_dilate: (R_bg, R_fg, A_fg, 0)
 uniform int u_foreground;
 uniform int u_tile_size;
@@ -24,7 +27,6 @@ uniform float u_beta;
 uniform int u_blades;
 uniform float u_rotation;      // radians
 uniform vec3 u_area_fit;       // K(r) ≈ c2·r² + c1·r + c0
-uniform vec2 u_full_size;      // the frame, px
 
 layout(location = 0) out vec4 o_sum;
 layout(location = 1) out vec4 o_weight;
@@ -37,27 +39,26 @@ void main() {
     o_weight = vec4(0.0);
     if (big_r <= u_small_radius || (u_foreground != 0 && tile.z <= 0.0)) return;
     vec2 centre = 2.0 * vec2(h) + 1.0;  // full-res px; equals a pixel centre ± ½
-    vec2 half_size = vec2(textureSize(u_src_tx, 0));
+    ivec2 half_n = textureSize(u_src_tx, 0);
     float reach = big_r + 0.5;
-    // One sample per ~4 half-res texels of the disk, at least 12, at most u_samples.
-    int count = clamp(int(3.14159265 * reach * reach / 16.0), 12, u_samples);
+    int count = fast_sample_count(reach, u_samples);
     float area = 3.14159265 * reach * reach / float(count);
     vec4 s = vec4(0.0);
     float sw = 0.0;
-    for (int i = 0; i < count; ++i) {
+    for (int i = 1; i < count; ++i) {  // i = 0: the core, dof_fast.frag's own term
         float rad = reach * sqrt((float(i) + 0.5) / float(count));
         float ang = 2.39996323 * float(i);
-        vec2 o = rad * vec2(cos(ang), sin(ang));
-        vec2 q = centre + o;
-        if (q.x < 0.0 || q.y < 0.0 || q.x > u_full_size.x || q.y > u_full_size.y) continue;
-        vec2 uv = q / (2.0 * half_size);
-        vec4 src = texture(u_src_tx, uv);
+        // The sample is the half-res source texel under the spiral point (one fetch, no
+        // filtering), and ρ is measured to that texel's centre.
+        ivec2 qh = h + ivec2(floor(0.5 * rad * vec2(cos(ang), sin(ang)) + 0.5));
+        if (qh.x < 0 || qh.y < 0 || qh.x >= half_n.x || qh.y >= half_n.y || qh == h) continue;
+        vec4 src = texelFetch(u_src_tx, qh, 0);
         float rq = src.a;
-        float rho = shape_rho(-o, u_blades, u_rotation);  // the offset p − q
+        float rho = shape_rho(2.0 * vec2(h - qh), u_blades, u_rotation);  // the offset p − q
         float edge = rq - rho + 0.5;
         if (edge <= 0.0) continue;
         float w = area * disk_kernel(rq - rho, u_beta) * min(edge, 1.0) / area_fit(rq, u_area_fit);
-        float a = u_foreground != 0 ? texture(u_alpha_tx, uv).r : 1.0;
+        float a = u_foreground != 0 ? texelFetch(u_alpha_tx, qh, 0).r : 1.0;
         s += w * vec4(src.rgb, a);
         sw += w;
     }

@@ -10,11 +10,11 @@
 uniform float u_beta;
 uniform int u_blades;
 uniform float u_rotation;  // radians
-uniform vec3 u_area_fit;   // K(r) ≈ c2·r² + c1·r + c0
 
 flat in vec3 v_excess;
 flat in float v_radius;
 flat in vec2 v_centre;
+flat in float v_inv_area;
 
 layout(location = 0) out vec4 o_sum;
 
@@ -23,6 +23,6 @@ void main() {
     float rho = shape_rho(o, u_blades, u_rotation);
     float edge = v_radius - rho + 0.5;
     if (edge <= 0.0) discard;
-    float w = disk_kernel(v_radius - rho, u_beta) * min(edge, 1.0) / area_fit(v_radius, u_area_fit);
+    float w = disk_kernel(v_radius - rho, u_beta) * min(edge, 1.0) * v_inv_area;
     o_sum = vec4(w * v_excess, 0.0);
 }

@@ -238,9 +238,10 @@ GlPreview::~GlPreview() {
                       &m_prep0[0], &m_prep0[1],   &m_prep1[0],  &m_prep1[1],   &m_tiles[0],
                       &m_tiles[1], &m_blurred_bg, &m_result,    &m_shape_tx,   &m_area_tx})
         delete_texture(*t);
-    for (GLuint* t : {&m_fast_tiles, &m_fast_dilated, &m_half_bg, &m_half_fg, &m_half_alpha,
-                      &m_half_sprite[0], &m_half_sprite[1], &m_half_sum[0], &m_half_sum[1],
-                      &m_half_weight[0], &m_half_weight[1], &m_sprite_sum[0], &m_sprite_sum[1]})
+    for (GLuint* t :
+         {&m_fast_tiles, &m_fast_dilated, &m_half_bg, &m_half_fg, &m_half_alpha, &m_half_sprite[0],
+          &m_half_sprite[1], &m_half_spot[0], &m_half_spot[1], &m_half_sum[0], &m_half_sum[1],
+          &m_half_weight[0], &m_half_weight[1], &m_sprite_sum[0], &m_sprite_sum[1]})
         delete_texture(*t);
     for (GLuint p :
          {m_composite_prog, m_prep_prog, m_tiles_prog, m_dof_prog, m_fast_tiles_prog,

@@ -137,6 +137,7 @@ class GlPreview {
         m_fast_tiles_h = 0;
     unsigned int m_fast_tiles = 0, m_fast_dilated = 0;
     unsigned int m_half_bg = 0, m_half_fg = 0, m_half_alpha = 0, m_half_sprite[2] = {0, 0};
+    unsigned int m_half_spot[2] = {0, 0};
     unsigned int m_half_sum[2] = {0, 0}, m_half_weight[2] = {0, 0}, m_sprite_sum[2] = {0, 0};
     // timing
     bool m_timing = false;

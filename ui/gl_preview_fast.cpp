@@ -15,9 +15,10 @@ namespace refocus {
 namespace gl_util {
 
 void fit_area_table(const std::vector<float>& area, int steps, float out[3]) {
-    // Normal equations of Σ ((c2·r² + c1·r + c0 − K)/K)² over the entries with r ≥ 1.
+    // Normal equations of Σ ((c2·r² + c1·r + c0 − K)/K)² over the entries with r ≥ 2 (the
+    // gather's sources that matter; below, K steps with the pixel grid and no quadratic fits).
     double m[3][4] = {};
-    for (size_t i = static_cast<size_t>(steps); i < area.size(); ++i) {
+    for (size_t i = static_cast<size_t>(2 * steps); i < area.size(); ++i) {
         const double r = static_cast<double>(i) / steps, k = area[i];
         if (!(k > 0.0)) continue;
         const double b[3] = {r * r / k, r / k, 1.0 / k};
@@ -70,6 +71,8 @@ void GlPreview::ensure_fast(int w, int h) {
         allocate(*t, GL_R32F, m_half_w, m_half_h, GL_RED, nullptr, true);
     for (GLuint* t : {&m_half_sprite[0], &m_half_sprite[1]})
         allocate(*t, GL_RGBA32F, m_half_w, m_half_h, GL_RGBA, nullptr);
+    for (GLuint* t : {&m_half_spot[0], &m_half_spot[1]})
+        allocate(*t, GL_RG32F, m_half_w, m_half_h, GL_RG, nullptr);
     for (GLuint* t : {&m_sprite_sum[0], &m_sprite_sum[1]})
         allocate(*t, GL_RGBA32F, w, h, GL_RGBA, nullptr);
 }
@@ -79,7 +82,7 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     const float rotation = static_cast<float>(lens.rotation_deg * M_PI / 180.0);
     // A source brighter than display white (or the lens's threshold, if higher) is a highlight.
     const double level = std::max(lens.highlight_threshold, 1.0);
-    const double sprite_min_radius = 1.0;
+    const double sprite_min_radius = 0.5;  // a blurred highlight; r ≤ ½ is sharp
     auto lens_uniforms = [&](GLuint prog) {
         set_float(prog, "u_beta", lens.beta);
         set_int(prog, "u_blades", lens.blades);
@@ -116,7 +119,8 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     set_float(prog, "u_highlight_level", level);
     set_float(prog, "u_sprite_min_radius", sprite_min_radius);
     draw(prog, m_half_w, m_half_h,
-         {m_half_bg, m_half_fg, m_half_alpha, m_half_sprite[0], m_half_sprite[1]});
+         {m_half_bg, m_half_fg, m_half_alpha, m_half_sprite[0], m_half_sprite[1], m_half_spot[0],
+          m_half_spot[1]});
     mark_pass("half-res sources");
 
     prog = m_fast_gather_prog;
@@ -143,11 +147,15 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     const float zero[4] = {0.0f, 0.0f, 0.0f, 0.0f};
     for (int layer = 0; layer < 2; ++layer) {
         bind_sampler(prog, "u_sprite_tx", 0, m_half_sprite[layer]);
+        bind_sampler(prog, "u_area_tx", 1, m_area_tx);
+        bind_sampler(prog, "u_spot_tx", 2, m_half_spot[layer]);
+        set_int(prog, "u_area_steps", kPreviewAreaSteps);
         glDisable(GL_BLEND);
         draw(prog, m_width, m_height, {m_sprite_sum[layer]}, -1);
         glClearBufferfv(GL_COLOR, 0, zero);
         glEnable(GL_BLEND);
-        draw(prog, m_width, m_height, {m_sprite_sum[layer]}, m_half_w * m_half_h);
+        draw(prog, m_width, m_height, {m_sprite_sum[layer]},
+             ((m_half_w + 1) / 2) * ((m_half_h + 1) / 2));
     }
     glDisable(GL_BLEND);
     glDisable(GL_PROGRAM_POINT_SIZE);
@@ -171,6 +179,7 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     set_int(prog, "u_window", m_window);
     set_float(prog, "u_beta", lens.beta);
     set_float(prog, "u_small_radius", kFastSmallRadius);
+    set_int(prog, "u_samples", kFastSamples);
     set_float(prog, "u_highlight_level", level);
     set_float(prog, "u_sprite_min_radius", sprite_min_radius);
     draw(prog, m_width, m_height, {m_result});

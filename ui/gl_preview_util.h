@@ -20,7 +20,7 @@ void set_int(unsigned int prog, const char* name, int v);
 void set_float(unsigned int prog, const char* name, double v);
 
 // Least-squares fit, relative to K, of K(r) ≈ c2·r² + c1·r + c0 to the kernel-area table
-// (preview_area_table, `steps` entries per px) over r ≥ 1: the fast path's K without a fetch.
+// (preview_area_table, `steps` entries per px) over r ≥ 2: the fast gather's K without a fetch.
 void fit_area_table(const std::vector<float>& area, int steps, float out[3]);
 
 }  // namespace refocus::gl_util
