@@ -23,6 +23,7 @@ uniform int u_foreground;
 uniform int u_tile_size;
 uniform float u_small_radius;
 uniform int u_samples;         // N at most
+uniform vec2 u_spiral[64];     // (cos, sin)(i·golden angle), i < u_samples: no trig per sample
 uniform float u_beta;
 uniform int u_blades;
 uniform float u_rotation;      // radians
@@ -47,10 +48,9 @@ void main() {
     float sw = 0.0;
     for (int i = 1; i < count; ++i) {  // i = 0: the core, dof_fast.frag's own term
         float rad = reach * sqrt((float(i) + 0.5) / float(count));
-        float ang = 2.39996323 * float(i);
         // The sample is the half-res source texel under the spiral point (one fetch, no
         // filtering), and ρ is measured to that texel's centre.
-        ivec2 qh = h + ivec2(floor(0.5 * rad * vec2(cos(ang), sin(ang)) + 0.5));
+        ivec2 qh = h + ivec2(floor(0.5 * rad * u_spiral[i] + 0.5));
         if (qh.x < 0 || qh.y < 0 || qh.x >= half_n.x || qh.y >= half_n.y || qh == h) continue;
         vec4 src = texelFetch(u_src_tx, qh, 0);
         float rq = src.a;

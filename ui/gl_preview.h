@@ -49,7 +49,8 @@ enum class PreviewQuality { Exact, Fast };
 // this), px; larger tiles are gathered at half resolution.
 constexpr float kFastSmallRadius = 2.5f;
 constexpr int kFastTileSize = 16;  // px per side of the fast path's tiles
-constexpr int kFastSamples = 32;   // most samples per half-resolution pixel of the disk gather
+constexpr int kFastSamples =
+    24;  // most samples (≤ 64) per half-resolution pixel of the disk gather
 
 class GlPreview {
   public:

@@ -46,6 +46,10 @@ void fit_area_table(const std::vector<float>& area, int steps, float out[3]) {
 
 using namespace gl_util;
 
+namespace {
+const double kGoldenAngle = M_PI * (3.0 - std::sqrt(5.0));  // radians: the spiral's even spread
+}  // namespace
+
 void GlPreview::ensure_fast(int w, int h) {
     if (!m_fast_prog) {
         m_fast_tiles_prog = link_program(m_dir, "dof_fast_tiles.frag");
@@ -129,6 +133,15 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     set_int(prog, "u_tile_size", kFastTileSize);
     set_float(prog, "u_small_radius", kFastSmallRadius);
     set_int(prog, "u_samples", kFastSamples);
+    {
+        float dirs[2 * kFastSamples];
+        for (int i = 0; i < kFastSamples; ++i) {
+            const double a = i * kGoldenAngle;
+            dirs[2 * i] = static_cast<float>(std::cos(a));
+            dirs[2 * i + 1] = static_cast<float>(std::sin(a));
+        }
+        glUniform2fv(glGetUniformLocation(prog, "u_spiral"), kFastSamples, dirs);
+    }
     for (int layer = 0; layer < 2; ++layer) {
         bind_sampler(prog, "u_src_tx", 0, layer ? m_half_fg : m_half_bg);
         bind_sampler(prog, "u_alpha_tx", 1, m_half_alpha);
@@ -175,6 +188,9 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     bind_sampler(prog, "u_fg_weight_tx", 9, m_half_weight[1]);
     bind_sampler(prog, "u_bg_sprite_tx", 10, m_sprite_sum[0]);
     bind_sampler(prog, "u_fg_sprite_tx", 11, m_sprite_sum[1]);
+    bind_sampler(prog, "u_bg_src_tx", 12, m_half_bg);
+    bind_sampler(prog, "u_fg_src_tx", 13, m_half_fg);
+    bind_sampler(prog, "u_fg_alpha_tx", 14, m_half_alpha);
     set_int(prog, "u_tile_size", kFastTileSize);
     set_int(prog, "u_window", m_window);
     set_float(prog, "u_beta", lens.beta);
