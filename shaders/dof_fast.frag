@@ -2,7 +2,7 @@
 // Fast depth of field, pass 6 (full resolution): each layer, then  out = F̂ + (1 − Â)·B̂.
 // Per pixel, by its tile's dilated radius R (dof_fast_dilate):
 //   R < ½               the pixel itself (early pass-through; exact);
-//   R ≤ u_small_radius  the exact gather (gather_exact, dof.frag's loop; at most 29 taps);
+//   R ≤ u_small_radius  the exact gather (gather_exact, dof.frag's loop; ≤ 21 taps at 1.5 px);
 //   larger              the pixel's own term at full resolution plus the half-resolution sums
 //                       of the others (dof_fast_gather, upsampled bilinearly) and the
 //                       highlight sprites (dof_sprite), normalised as the exact gather is:

@@ -11,9 +11,9 @@
 //   dof_fast_tiles   max radius (and foreground α) per 16×16 tile, both layers
 //   dof_fast_dilate  … grown to what can reach each tile; R < ½: early pass-through
 //   dof_fast_down    half-resolution sources, highlights split off
-//   dof_fast_gather  per layer, half resolution: N-sample disk sums for tiles with R > 2.5 px
+//   dof_fast_gather  per layer, half resolution: N-sample disk sums for tiles with R > 1.5 px
 //   dof_sprite       per layer: highlights as additive disk sprites, only where they are
-//   dof_fast         full resolution: exact gather where R ≤ 2.5 px, else own term + upsampled
+//   dof_fast         full resolution: exact gather where R ≤ 1.5 px, else own term + upsampled
 //                    sums + sprites; out = F̂ + (1 − Â)·B̂
 // Works in a GL 3.3 core context (the studio's GLFW window) and headless on OSMesa (tests, the
 // benchmark). Needs a current context for its whole life; touches no GL state it does not put
@@ -47,7 +47,7 @@ enum class PreviewQuality { Exact, Fast };
 
 // Radii the fast path gathers exactly at full resolution (tiles whose dilated radius is at most
 // this), px; larger tiles are gathered at half resolution.
-constexpr float kFastSmallRadius = 2.5f;
+constexpr float kFastSmallRadius = 1.5f;
 constexpr int kFastTileSize = 16;  // px per side of the fast path's tiles
 constexpr int kFastSamples =
     24;  // most samples (≤ 64) per half-resolution pixel of the disk gather
@@ -98,8 +98,13 @@ class GlPreview {
     void ensure_size(int w, int h);
     void ensure_tables(const PreviewLens& lens);
     void render_exact(const PreviewLens& lens);
-    void render_fast(const PreviewLens& lens);  // gl_preview_fast.cpp
-    void ensure_fast(int w, int h);             // gl_preview_fast.cpp
+    // gl_preview_fast.cpp
+    void render_fast(const PreviewLens& lens);
+    void ensure_fast(int w, int h);
+    void fast_sources(const PreviewLens& lens);
+    void fast_gather(const PreviewLens& lens);
+    void fast_resolve(const PreviewLens& lens);
+    void lens_uniforms(unsigned int prog, const PreviewLens& lens);
     void mark_pass(const char* name);
     // A fullscreen triangle, or `points` points (the sprite pass), into `targets` (≤ 8);
     // points < 0 binds the targets and the viewport only.

@@ -47,8 +47,26 @@ void fit_area_table(const std::vector<float>& area, int steps, float out[3]) {
 using namespace gl_util;
 
 namespace {
+
 const double kGoldenAngle = M_PI * (3.0 - std::sqrt(5.0));  // radians: the spiral's even spread
+const double kSpriteMinRadius = 0.5;  // a blurred highlight is a sprite; r ≤ ½ is sharp
+
+// A source brighter than display white (or the lens's threshold, if higher) is a highlight.
+double highlight_level(const PreviewLens& lens) {
+    return std::max(lens.highlight_threshold, 1.0);
+}
+
 }  // namespace
+
+void GlPreview::lens_uniforms(unsigned int prog, const PreviewLens& lens) {
+    set_float(prog, "u_beta", lens.beta);
+    set_int(prog, "u_blades", lens.blades);
+    set_float(prog, "u_rotation", lens.rotation_deg * M_PI / 180.0);
+    glUniform3f(glGetUniformLocation(prog, "u_area_fit"), m_area_fit[0], m_area_fit[1],
+                m_area_fit[2]);
+    glUniform2f(glGetUniformLocation(prog, "u_full_size"), static_cast<float>(m_width),
+                static_cast<float>(m_height));
+}
 
 void GlPreview::ensure_fast(int w, int h) {
     if (!m_fast_prog) {
@@ -83,20 +101,13 @@ void GlPreview::ensure_fast(int w, int h) {
 
 void GlPreview::render_fast(const PreviewLens& lens) {
     ensure_fast(m_width, m_height);
-    const float rotation = static_cast<float>(lens.rotation_deg * M_PI / 180.0);
-    // A source brighter than display white (or the lens's threshold, if higher) is a highlight.
-    const double level = std::max(lens.highlight_threshold, 1.0);
-    const double sprite_min_radius = 0.5;  // a blurred highlight; r ≤ ½ is sharp
-    auto lens_uniforms = [&](GLuint prog) {
-        set_float(prog, "u_beta", lens.beta);
-        set_int(prog, "u_blades", lens.blades);
-        set_float(prog, "u_rotation", rotation);
-        glUniform3f(glGetUniformLocation(prog, "u_area_fit"), m_area_fit[0], m_area_fit[1],
-                    m_area_fit[2]);
-        glUniform2f(glGetUniformLocation(prog, "u_full_size"), static_cast<float>(m_width),
-                    static_cast<float>(m_height));
-    };
+    fast_sources(lens);
+    fast_gather(lens);
+    fast_resolve(lens);
+}
 
+// Tiles, their dilation, and the half-resolution sources (dof_fast_tiles, _dilate, _down).
+void GlPreview::fast_sources(const PreviewLens& lens) {
     GLuint prog = m_fast_tiles_prog;
     glUseProgram(prog);
     bind_sampler(prog, "u_bg_prep0_tx", 0, m_prep0[0]);
@@ -120,16 +131,19 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     bind_sampler(prog, "u_bg_prep0_tx", 0, m_prep0[0]);
     bind_sampler(prog, "u_fg_prep0_tx", 1, m_prep0[1]);
     bind_sampler(prog, "u_fg_prep1_tx", 2, m_prep1[1]);
-    set_float(prog, "u_highlight_level", level);
-    set_float(prog, "u_sprite_min_radius", sprite_min_radius);
+    set_float(prog, "u_highlight_level", highlight_level(lens));
+    set_float(prog, "u_sprite_min_radius", kSpriteMinRadius);
     draw(prog, m_half_w, m_half_h,
          {m_half_bg, m_half_fg, m_half_alpha, m_half_sprite[0], m_half_sprite[1], m_half_spot[0],
           m_half_spot[1]});
     mark_pass("half-res sources");
+}
 
-    prog = m_fast_gather_prog;
+// The half-resolution disk sums and the highlight sprites (dof_fast_gather, dof_sprite).
+void GlPreview::fast_gather(const PreviewLens& lens) {
+    GLuint prog = m_fast_gather_prog;
     glUseProgram(prog);
-    lens_uniforms(prog);
+    lens_uniforms(prog, lens);
     set_int(prog, "u_tile_size", kFastTileSize);
     set_float(prog, "u_small_radius", kFastSmallRadius);
     set_int(prog, "u_samples", kFastSamples);
@@ -153,7 +167,7 @@ void GlPreview::render_fast(const PreviewLens& lens) {
 
     prog = m_sprite_prog;
     glUseProgram(prog);
-    lens_uniforms(prog);
+    lens_uniforms(prog, lens);
     glEnable(GL_PROGRAM_POINT_SIZE);
     glBlendFuncSeparate(GL_ONE, GL_ONE, GL_ONE, GL_ONE);
     glBlendEquationSeparate(GL_FUNC_ADD, GL_FUNC_ADD);
@@ -173,8 +187,11 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     glDisable(GL_BLEND);
     glDisable(GL_PROGRAM_POINT_SIZE);
     mark_pass("highlight sprites");
+}
 
-    prog = m_fast_prog;
+// Full resolution: each layer by its tile, then over (dof_fast.frag).
+void GlPreview::fast_resolve(const PreviewLens& lens) {
+    const GLuint prog = m_fast_prog;
     glUseProgram(prog);
     bind_sampler(prog, "u_bg_prep0_tx", 0, m_prep0[0]);
     bind_sampler(prog, "u_bg_prep1_tx", 1, m_prep1[0]);
@@ -196,8 +213,8 @@ void GlPreview::render_fast(const PreviewLens& lens) {
     set_float(prog, "u_beta", lens.beta);
     set_float(prog, "u_small_radius", kFastSmallRadius);
     set_int(prog, "u_samples", kFastSamples);
-    set_float(prog, "u_highlight_level", level);
-    set_float(prog, "u_sprite_min_radius", sprite_min_radius);
+    set_float(prog, "u_highlight_level", highlight_level(lens));
+    set_float(prog, "u_sprite_min_radius", kSpriteMinRadius);
     draw(prog, m_width, m_height, {m_result});
     mark_pass("resolve");
 }
