@@ -45,8 +45,13 @@ layout(location = 0) out vec4 o_color;
 
 vec4 resolve(sampler2D prep0_tx, sampler2D prep1_tx, sampler2D sum_tx, sampler2D weight_tx,
              sampler2D sprite_tx, sampler2D src_tx, ivec2 p, float big_r, bool bg) {
-    if (big_r <= u_small_radius)
-        return gather_exact(prep0_tx, prep1_tx, u_shape_tx, p, big_r, u_window, u_beta);
+    // A branch that differs between neighbouring pixels runs both sides on software GL (masked
+    // SIMD): the gather's window is 0 for the pixels that do not take it, so that it costs them
+    // one tap instead of a loop over the large radius.
+    bool small = big_r <= u_small_radius;
+    vec4 exact = gather_exact(prep0_tx, prep1_tx, u_shape_tx, p, small ? big_r : 0.0, u_window,
+                              u_beta);
+    if (small) return exact;
     vec4 p0 = texelFetch(prep0_tx, p, 0);
     vec2 p1 = texelFetch(prep1_tx, p, 0).rg;
     vec3 own = p0.rgb - highlight_excess(p0.rgb, p1.r, p0.a, u_highlight_level,

@@ -38,12 +38,14 @@ void main() {
     float big_r = u_foreground != 0 ? tile.y : tile.x;
     o_sum = vec4(0.0);
     o_weight = vec4(0.0);
-    if (big_r <= u_small_radius || (u_foreground != 0 && tile.z <= 0.0)) return;
+    // No early return: a branch that differs between neighbouring pixels runs both sides on
+    // software GL (masked SIMD); a loop of 0 iterations costs nothing.
+    bool skip = big_r <= u_small_radius || (u_foreground != 0 && tile.z <= 0.0);
     vec2 centre = 2.0 * vec2(h) + 1.0;  // full-res px; equals a pixel centre ± ½
     ivec2 half_n = textureSize(u_src_tx, 0);
     float reach = big_r + 0.5;
-    int count = fast_sample_count(reach, u_samples);
-    float area = 3.14159265 * reach * reach / float(count);
+    int count = skip ? 0 : fast_sample_count(reach, u_samples);
+    float area = 3.14159265 * reach * reach / float(max(count, 1));
     vec4 s = vec4(0.0);
     float sw = 0.0;
     for (int i = 1; i < count; ++i) {  // i = 0: the core, dof_fast.frag's own term
