@@ -31,17 +31,15 @@ vec3 highlight_excess(vec3 ac, float a, float r, float level, float min_r) {
 // The fast gather's sample count for the disk of radius `reach` = R + ½: about one sample per
 // 16 px (4 half-res texels), at least 12, at most max_samples. Sample i of N stands for the ring
 // between reach·√(i/N) and reach·√((i+1)/N), equal areas π·reach²/N; sample 0's disk, the core of
-// radius reach/√N, is left to the pixel's own term (dof_fast.frag core_weight).
+// radius reach/√N, is left to the pixel's own term (dof_fast.frag, core_share).
 int fast_sample_count(float reach, int max_samples) {
     return clamp(int(3.14159265 * reach * reach / 16.0), 12, max_samples);
 }
 
-// The exact weight of the core's sources, taken as all alike the pixel (radius r, kernel area K):
-// w_p = k(r)·min(r + ½, 1)/K at least (the pixel alone), else the share of r's disk inside the
-// core, (ρ_core / (r + ½))², at most 1 (then the core holds every source that reaches p, and
-// their weights sum to 1). A pixel sharper than the sample spacing stays sharp this way.
-float core_weight(float r, float inv_area, float beta, float core) {
-    float own = disk_kernel(r, beta) * min(r + 0.5, 1.0) * inv_area;
-    float share = min(core * core / ((r + 0.5) * (r + 0.5)), 1.0);
-    return max(own, share);
+// The weight of the core's sources, taken as all alike the pixel (radius r): the share of r's
+// disk inside the core, (ρ_core / (r + ½))², at most 1 (then the core holds every source that
+// reaches p, and their weights sum to 1). The pixel's own weight w_p is the floor
+// (dof_fast.frag): a pixel sharper than the sample spacing stays sharp.
+float core_share(float r, float core) {
+    return min(core * core / ((r + 0.5) * (r + 0.5)), 1.0);
 }

@@ -35,8 +35,10 @@ std::string read_text(const std::string& path) {
     return ss.str();
 }
 
-// Splices `#include "name"` lines (resolved in `dir`); GLSL itself has no include.
-std::string load_source(const std::string& dir, const std::string& name) {
+// Splices `#include "name"` lines (resolved in `dir`); GLSL itself has no include. `defines`
+// (lines such as "#define X 1\n") go after the #version line: one source, several variants.
+std::string load_source(const std::string& dir, const std::string& name,
+                        const std::string& defines) {
     std::istringstream in(read_text(dir + "/" + name));
     std::string line, out;
     while (std::getline(in, line)) {
@@ -50,12 +52,14 @@ std::string load_source(const std::string& dir, const std::string& name) {
             out += line;
         }
         out += '\n';
+        if (line.compare(0, 8, "#version") == 0) out += defines;
     }
     return out;
 }
 
-GLuint compile(GLenum type, const std::string& dir, const std::string& name) {
-    const std::string src = load_source(dir, name);
+GLuint compile(GLenum type, const std::string& dir, const std::string& name,
+               const std::string& defines) {
+    const std::string src = load_source(dir, name, defines);
     GLuint s = glCreateShader(type);
     const char* p = src.c_str();
     glShaderSource(s, 1, &p, nullptr);
@@ -77,11 +81,12 @@ GLuint compile(GLenum type, const std::string& dir, const std::string& name) {
 
 namespace gl_util {
 
-GLuint link_program(const std::string& dir, const std::string& frag, const std::string& vert) {
-    GLuint vs = compile(GL_VERTEX_SHADER, dir, vert);
+GLuint link_program(const std::string& dir, const std::string& frag, const std::string& vert,
+                    const std::string& defines) {
+    GLuint vs = compile(GL_VERTEX_SHADER, dir, vert, "");
     GLuint fs = 0;
     try {
-        fs = compile(GL_FRAGMENT_SHADER, dir, frag);
+        fs = compile(GL_FRAGMENT_SHADER, dir, frag, defines);
     } catch (...) {
         glDeleteShader(vs);
         throw;
@@ -243,9 +248,10 @@ GlPreview::~GlPreview() {
           &m_half_sprite[1], &m_half_spot[0], &m_half_spot[1], &m_half_sum[0], &m_half_sum[1],
           &m_half_weight[0], &m_half_weight[1], &m_sprite_sum[0], &m_sprite_sum[1]})
         delete_texture(*t);
-    for (GLuint p :
-         {m_composite_prog, m_prep_prog, m_tiles_prog, m_dof_prog, m_fast_tiles_prog,
-          m_fast_dilate_prog, m_fast_down_prog, m_fast_gather_prog, m_sprite_prog, m_fast_prog})
+    for (GLuint p : {m_composite_prog, m_prep_prog, m_tiles_prog, m_dof_prog, m_fast_tiles_prog,
+                     m_fast_dilate_prog, m_fast_down_prog, m_fast_gather_prog, m_sprite_prog,
+                     m_fast_prog[0][1], m_fast_prog[0][2], m_fast_prog[1][0], m_fast_prog[1][1],
+                     m_fast_prog[1][2]})
         if (p) glDeleteProgram(p);
     if (m_vao) glDeleteVertexArrays(1, &m_vao);
     if (m_fbo) glDeleteFramebuffers(1, &m_fbo);
@@ -348,7 +354,8 @@ void GlPreview::ensure_tables(const PreviewLens& lens) {
 }
 
 void GlPreview::draw(unsigned int program, int w, int h,
-                     std::initializer_list<unsigned int> targets, int points) {
+                     std::initializer_list<unsigned int> targets, int count,
+                     unsigned int primitive) {
     glBindFramebuffer(GL_FRAMEBUFFER, m_fbo);
     GLenum buffers[8];
     int i = 0;
@@ -369,9 +376,9 @@ void GlPreview::draw(unsigned int program, int w, int h,
         }() + ")");
     glViewport(0, 0, w, h);
     glBindVertexArray(m_vao);
-    if (points < 0) return;  // the targets bound, to be cleared
-    if (points > 0)
-        glDrawArrays(GL_POINTS, 0, points);
+    if (count < 0) return;  // the targets bound, to be cleared
+    if (count > 0)
+        glDrawArrays(primitive, 0, count);
     else
         glDrawArrays(GL_TRIANGLES, 0, 3);
 }

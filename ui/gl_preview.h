@@ -13,8 +13,9 @@
 //   dof_fast_down    half-resolution sources, highlights split off
 //   dof_fast_gather  per layer, half resolution: N-sample disk sums for tiles with R > 1.5 px
 //   dof_sprite       per layer: highlights as additive disk sprites, only where they are
-//   dof_fast         full resolution: exact gather where R ≤ 1.5 px, else own term + upsampled
-//                    sums + sprites; out = F̂ + (1 − Â)·B̂
+//   dof_fast         full resolution, per layer, one draw per tile class over its tiles only:
+//                    exact gather where R ≤ 1.5 px, else own term + upsampled sums + sprites;
+//                    the foreground's draws write out = F̂ + (1 − Â)·B̂
 // Works in a GL 3.3 core context (the studio's GLFW window) and headless on OSMesa (tests, the
 // benchmark). Needs a current context for its whole life; touches no GL state it does not put
 // back (framebuffer, viewport, program, vertex array, blend/depth/scissor enables).
@@ -106,10 +107,10 @@ class GlPreview {
     void fast_resolve(const PreviewLens& lens);
     void lens_uniforms(unsigned int prog, const PreviewLens& lens);
     void mark_pass(const char* name);
-    // A fullscreen triangle, or `points` points (the sprite pass), into `targets` (≤ 8);
-    // points < 0 binds the targets and the viewport only.
+    // A fullscreen triangle, or `count` vertices of `primitive` (the sprites' points, the tile
+    // classes' quads), into `targets` (≤ 8); count < 0 binds the targets and the viewport only.
     void draw(unsigned int program, int w, int h, std::initializer_list<unsigned int> targets,
-              int points = 0);
+              int count = 0, unsigned int primitive = 0 /* GL_POINTS */);
     Image read_texture(unsigned int tex, int w, int h, int channels) const;
 
     std::string m_dir;
@@ -138,7 +139,8 @@ class GlPreview {
     float m_area_fit[3] = {0.0f, 0.0f, 0.5f};  // K(r) ≈ c2·r² + c1·r + c0 (fast path)
     // fast path: programs, tiles, half-resolution sources and sums, sprite sums
     unsigned int m_fast_tiles_prog = 0, m_fast_dilate_prog = 0, m_fast_down_prog = 0;
-    unsigned int m_fast_gather_prog = 0, m_sprite_prog = 0, m_fast_prog = 0;
+    unsigned int m_fast_gather_prog = 0, m_sprite_prog = 0;
+    unsigned int m_fast_prog[2][3] = {{0, 0, 0}, {0, 0, 0}};  // [layer][tile class]
     int m_fast_w = 0, m_fast_h = 0, m_half_w = 0, m_half_h = 0, m_fast_tiles_w = 0,
         m_fast_tiles_h = 0;
     unsigned int m_fast_tiles = 0, m_fast_dilated = 0;

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 #include "gl_preview.h"
 #include "gl_preview_util.h"
@@ -69,13 +70,19 @@ void GlPreview::lens_uniforms(unsigned int prog, const PreviewLens& lens) {
 }
 
 void GlPreview::ensure_fast(int w, int h) {
-    if (!m_fast_prog) {
+    if (!m_fast_tiles_prog) {
         m_fast_tiles_prog = link_program(m_dir, "dof_fast_tiles.frag");
         m_fast_dilate_prog = link_program(m_dir, "dof_fast_dilate.frag");
         m_fast_down_prog = link_program(m_dir, "dof_fast_down.frag");
         m_fast_gather_prog = link_program(m_dir, "dof_fast_gather.frag");
         m_sprite_prog = link_program(m_dir, "dof_sprite.frag", "dof_sprite.vert");
-        m_fast_prog = link_program(m_dir, "dof_fast.frag");
+        // The background has no class 0 (no colour): it always has its own.
+        for (int layer = 0; layer < 2; ++layer)
+            for (int cls = 1 - layer; cls < 3; ++cls)
+                m_fast_prog[layer][cls] =
+                    link_program(m_dir, "dof_fast.frag", "dof_fast_class.vert",
+                                 "#define FAST_FOREGROUND " + std::to_string(layer) +
+                                     "\n#define FAST_CLASS " + std::to_string(cls) + "\n");
     }
     if (w == m_fast_w && h == m_fast_h) return;
     m_fast_w = w;
@@ -182,40 +189,45 @@ void GlPreview::fast_gather(const PreviewLens& lens) {
         glClearBufferfv(GL_COLOR, 0, zero);
         glEnable(GL_BLEND);
         draw(prog, m_width, m_height, {m_sprite_sum[layer]},
-             ((m_half_w + 1) / 2) * ((m_half_h + 1) / 2));
+             ((m_half_w + 1) / 2) * ((m_half_h + 1) / 2), GL_POINTS);
     }
     glDisable(GL_BLEND);
     glDisable(GL_PROGRAM_POINT_SIZE);
     mark_pass("highlight sprites");
 }
 
-// Full resolution: each layer by its tile, then over (dof_fast.frag).
+// Full resolution, per layer and tile class, each class drawn over its own tiles (dof_fast.frag,
+// dof_fast_class.vert): the background into m_blurred_bg, then the foreground over it.
 void GlPreview::fast_resolve(const PreviewLens& lens) {
-    const GLuint prog = m_fast_prog;
-    glUseProgram(prog);
-    bind_sampler(prog, "u_bg_prep0_tx", 0, m_prep0[0]);
-    bind_sampler(prog, "u_bg_prep1_tx", 1, m_prep1[0]);
-    bind_sampler(prog, "u_fg_prep0_tx", 2, m_prep0[1]);
-    bind_sampler(prog, "u_fg_prep1_tx", 3, m_prep1[1]);
-    bind_sampler(prog, "u_tiles_tx", 4, m_fast_dilated);
-    bind_sampler(prog, "u_shape_tx", 5, m_shape_tx);
-    bind_sampler(prog, "u_bg_sum_tx", 6, m_half_sum[0]);
-    bind_sampler(prog, "u_bg_weight_tx", 7, m_half_weight[0]);
-    bind_sampler(prog, "u_fg_sum_tx", 8, m_half_sum[1]);
-    bind_sampler(prog, "u_fg_weight_tx", 9, m_half_weight[1]);
-    bind_sampler(prog, "u_bg_sprite_tx", 10, m_sprite_sum[0]);
-    bind_sampler(prog, "u_fg_sprite_tx", 11, m_sprite_sum[1]);
-    bind_sampler(prog, "u_bg_src_tx", 12, m_half_bg);
-    bind_sampler(prog, "u_fg_src_tx", 13, m_half_fg);
-    bind_sampler(prog, "u_fg_alpha_tx", 14, m_half_alpha);
-    set_int(prog, "u_tile_size", kFastTileSize);
-    set_int(prog, "u_window", m_window);
-    set_float(prog, "u_beta", lens.beta);
-    set_float(prog, "u_small_radius", kFastSmallRadius);
-    set_int(prog, "u_samples", kFastSamples);
-    set_float(prog, "u_highlight_level", highlight_level(lens));
-    set_float(prog, "u_sprite_min_radius", kSpriteMinRadius);
-    draw(prog, m_width, m_height, {m_result});
+    const int quads = 6 * m_fast_tiles_w * m_fast_tiles_h;
+    for (int layer = 0; layer < 2; ++layer)
+        for (int cls = 1 - layer; cls < 3; ++cls) {
+            const GLuint prog = m_fast_prog[layer][cls];
+            glUseProgram(prog);
+            bind_sampler(prog, "u_prep0_tx", 0, m_prep0[layer]);
+            bind_sampler(prog, "u_prep1_tx", 1, m_prep1[layer]);
+            bind_sampler(prog, "u_tiles_tx", 2, m_fast_dilated);
+            bind_sampler(prog, "u_shape_tx", 3, m_shape_tx);
+            bind_sampler(prog, "u_sum_tx", 4, m_half_sum[layer]);
+            bind_sampler(prog, "u_weight_tx", 5, m_half_weight[layer]);
+            bind_sampler(prog, "u_sprite_tx", 6, m_sprite_sum[layer]);
+            bind_sampler(prog, "u_src_tx", 7, layer ? m_half_fg : m_half_bg);
+            bind_sampler(prog, "u_alpha_tx", 8, m_half_alpha);
+            // The background's draws must not sample their own target: the composite (unused).
+            bind_sampler(prog, "u_background_tx", 9, layer ? m_blurred_bg : m_composite);
+            set_int(prog, "u_tile_size", kFastTileSize);
+            set_int(prog, "u_foreground", layer);
+            set_int(prog, "u_class", cls);
+            set_float(prog, "u_small_radius", kFastSmallRadius);
+            glUniform2f(glGetUniformLocation(prog, "u_full_size"), static_cast<float>(m_width),
+                        static_cast<float>(m_height));
+            set_int(prog, "u_window", m_window);
+            set_float(prog, "u_beta", lens.beta);
+            set_int(prog, "u_samples", kFastSamples);
+            set_float(prog, "u_highlight_level", highlight_level(lens));
+            set_float(prog, "u_sprite_min_radius", kSpriteMinRadius);
+            draw(prog, m_width, m_height, {layer ? m_result : m_blurred_bg}, quads, GL_TRIANGLES);
+        }
     mark_pass("resolve");
 }
 

@@ -8,8 +8,10 @@ namespace refocus::gl_util {
 
 // Compiles `frag` (and `vert`) from `dir`, splicing #include "name" lines. Throws refocus::Error
 // naming the file and the GL log.
+// `defines` ("#define X 1\n" lines) go after the fragment shader's #version line.
 unsigned int link_program(const std::string& dir, const std::string& frag,
-                          const std::string& vert = "fullscreen.vert");
+                          const std::string& vert = "fullscreen.vert",
+                          const std::string& defines = "");
 // (Re)allocates `tex` (made if 0) as w × h of `internal`; `linear`: bilinear filtering (the fast
 // path's half-resolution textures), else nearest (texelFetch only).
 void allocate(unsigned int& tex, unsigned int internal, int w, int h, unsigned int format,
