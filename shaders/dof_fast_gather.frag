@@ -34,7 +34,14 @@ layout(location = 1) out vec4 o_weight;
 
 void main() {
     ivec2 h = ivec2(gl_FragCoord.xy);
-    vec4 tile = texelFetch(u_tiles_tx, (2 * h) / u_tile_size, 0);
+    // The resolve reads these sums bilinearly, so a texel at a tile's edge serves the tile beside
+    // it too: the largest radius (and foreground α) of the tiles its footprint touches, so that
+    // no tile gets sums cut short at its border.
+    ivec2 nt = textureSize(u_tiles_tx, 0);
+    ivec2 lo = max((2 * h - 1) / u_tile_size, 0), hi = min((2 * h + 2) / u_tile_size, nt - 1);
+    vec4 tile = vec4(0.0);
+    for (int ty = lo.y; ty <= hi.y; ++ty)
+        for (int tx = lo.x; tx <= hi.x; ++tx) tile = max(tile, texelFetch(u_tiles_tx, ivec2(tx, ty), 0));
     float big_r = u_foreground != 0 ? tile.y : tile.x;
     o_sum = vec4(0.0);
     o_weight = vec4(0.0);
