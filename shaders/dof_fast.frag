@@ -48,7 +48,7 @@ vec4 resolve_large(ivec2 p, float big_r) {
     // The core: sample 0's disk, and at least the 2 px between half-res samples (a source
     // nearer than that is in the pixel's own 2×2 block, which no sample reads).
     float core = max(reach / sqrt(float(fast_sample_count(reach, u_samples))), 2.0);
-    float w_own = disk_kernel(p0.a, u_beta) * min(p0.a + 0.5, 1.0) * p1.g;
+    float w_own = fast_kernel(p0.a, u_beta) * min(p0.a + 0.5, 1.0) * p1.g;
     float w = max(w_own, core_share(p0.a, core));
     vec2 uv = (vec2(p) + 0.5) / (2.0 * vec2(textureSize(u_sum_tx, 0)));
     // The core's sources other than the pixel: its neighbourhood, the half-res sources read

@@ -26,7 +26,6 @@ uniform int u_samples;         // N at most
 uniform vec2 u_spiral[64];     // (cos, sin)(i·golden angle), i < u_samples: no trig per sample
 uniform float u_beta;
 uniform int u_blades;
-uniform float u_rotation;      // radians
 uniform vec3 u_area_fit;       // K(r) ≈ c2·r² + c1·r + c0
 
 layout(location = 0) out vec4 o_sum;
@@ -63,10 +62,10 @@ void main() {
         if (qh.x < 0 || qh.y < 0 || qh.x >= half_n.x || qh.y >= half_n.y || qh == h) continue;
         vec4 src = texelFetch(u_src_tx, qh, 0);
         float rq = src.a;
-        float rho = shape_rho(2.0 * vec2(h - qh), u_blades, u_rotation);  // the offset p − q
+        float rho = shape_rho(2.0 * vec2(h - qh), u_blades);  // the offset p − q
         float edge = rq - rho + 0.5;
         if (edge <= 0.0) continue;
-        float w = area * disk_kernel(rq - rho, u_beta) * min(edge, 1.0) / area_fit(rq, u_area_fit);
+        float w = area * fast_kernel(rq - rho, u_beta) * min(edge, 1.0) / area_fit(rq, u_area_fit);
         float a = u_foreground != 0 ? texelFetch(u_alpha_tx, qh, 0).r : 1.0;
         s += w * vec4(src.rgb, a);
         sw += w;

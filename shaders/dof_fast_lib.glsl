@@ -3,15 +3,21 @@
 // docs/method.md ("The preview's depth of field").
 
 // ρ_n(o) = |o|·cos(φ' − π/n)/cos(π/n), φ' the angle of o from a vertex modulo 2π/n: the polygon
-// distance of preview_shape_table (= r on the polygon of circumradius r), computed in place.
-float shape_rho(vec2 o, int blades, float rotation) {
-    float rho = length(o);
-    if (blades < 3 || rho == 0.0) return rho;
-    float n = float(blades);
-    float sector = 6.28318530718 / n;
-    float phi = atan(o.y, o.x) - rotation;
-    float local = phi - sector * floor(phi / sector);
-    return rho * cos(local - 3.14159265359 / n) / cos(3.14159265359 / n);
+// distance of preview_shape_table (= r on the polygon of circumradius r). The sector's term is
+// the largest projection of o on the edge normals, max_k o·m_k/cos(π/n) (ui/gl_preview_fast.cpp
+// passes m_k/cos(π/n)): no atan or cos per sample, and nothing but |o| for a circle.
+uniform vec2 u_edge_normals[64];  // m_k/cos(π/n), k < u_blades
+float shape_rho(vec2 o, int blades) {
+    float m = -1e30;
+    for (int k = 0; k < blades; ++k) m = max(m, dot(o, u_edge_normals[k]));
+    return blades >= 3 ? m : length(o);
+}
+
+// Paper eq. 2, k = e^{βd}/(e^{βd} − d) = 1/(1 − d·e^{−βd}), in the second form for every d: one
+// exp, no branch (software GL evaluates both sides of a branch; disk_kernel's split keeps the
+// exact path bit-equal to its CPU twin). The exponent is capped: far outside the disk k → 0.
+float fast_kernel(float d, float beta) {
+    return 1.0 / (1.0 - d * exp(min(-beta * d, 80.0)));
 }
 
 // K(r), the kernel's discrete area, as c2·r² + c1·r + c0 fitted to the exact table over the

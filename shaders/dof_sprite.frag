@@ -9,7 +9,6 @@
 
 uniform float u_beta;
 uniform int u_blades;
-uniform float u_rotation;  // radians
 
 flat in vec3 v_excess;
 flat in float v_radius;
@@ -20,9 +19,9 @@ layout(location = 0) out vec4 o_sum;
 
 void main() {
     vec2 o = gl_FragCoord.xy - v_centre;  // p − q
-    float rho = shape_rho(o, u_blades, u_rotation);
+    float rho = shape_rho(o, u_blades);
     float edge = v_radius - rho + 0.5;
     if (edge <= 0.0) discard;
-    float w = disk_kernel(v_radius - rho, u_beta) * min(edge, 1.0) * v_inv_area;
+    float w = fast_kernel(v_radius - rho, u_beta) * min(edge, 1.0) * v_inv_area;
     o_sum = vec4(w * v_excess, 0.0);
 }

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include "gl_preview.h"
 #include "gl_preview_util.h"
@@ -62,7 +63,16 @@ double highlight_level(const PreviewLens& lens) {
 void GlPreview::lens_uniforms(unsigned int prog, const PreviewLens& lens) {
     set_float(prog, "u_beta", lens.beta);
     set_int(prog, "u_blades", lens.blades);
-    set_float(prog, "u_rotation", lens.rotation_deg * M_PI / 180.0);
+    if (lens.blades >= 3) {  // edge normals at rotation + π/n + 2πk/n, over cos(π/n)
+        std::vector<float> m(2 * lens.blades);
+        const double rot = lens.rotation_deg * M_PI / 180.0, n = lens.blades;
+        for (int k = 0; k < lens.blades; ++k) {
+            const double a = rot + M_PI / n + 2.0 * M_PI * k / n;
+            m[2 * k] = static_cast<float>(std::cos(a) / std::cos(M_PI / n));
+            m[2 * k + 1] = static_cast<float>(std::sin(a) / std::cos(M_PI / n));
+        }
+        glUniform2fv(glGetUniformLocation(prog, "u_edge_normals"), lens.blades, m.data());
+    }
     glUniform3f(glGetUniformLocation(prog, "u_area_fit"), m_area_fit[0], m_area_fit[1],
                 m_area_fit[2]);
     glUniform2f(glGetUniformLocation(prog, "u_full_size"), static_cast<float>(m_width),
