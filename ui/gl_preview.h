@@ -50,8 +50,8 @@ enum class PreviewQuality { Exact, Fast };
 // this), px; larger tiles are gathered at half resolution.
 constexpr float kFastSmallRadius = 1.5f;
 constexpr int kFastTileSize = 16;  // px per side of the fast path's tiles
-constexpr int kFastSamples =
-    24;  // most samples (≤ 64) per half-resolution pixel of the disk gather
+// Most samples (≤ 64) per half-resolution pixel of the fast path's disk gather.
+constexpr int kFastSamples = 20;
 
 class GlPreview {
   public:

@@ -519,11 +519,11 @@ PreviewLayers subject_layers() {
 // Thresholds, measured on llvmpipe (Mesa 22.3.6) and kept about 2.5 dB below (the fast path is
 // deterministic, so its error moves only with the code; a change that loses more is a
 // regression to look at, not noise):
-//   sharp subject over a background blurred 16 px    measured 34.4 dB  → ≥ 32 dB
-//   subject blurred 8 px over a sharp background      measured 37.0 dB  → ≥ 34 dB
-//   radius ramp 0 … 16 px, both layers                measured 31.8 dB  → ≥ 29 dB
-//   highlights (8 … 19.5× white) over the ramp, boost  measured 30.3 dB (6 blades 30.0) → ≥ 28
-// and mean |diff| ≤ 0.025 (measured ≤ 0.016). PSNR over the picture as shown (linear light
+//   sharp subject over a background blurred 16 px     measured 33.3 dB  → ≥ 31 dB
+//   subject blurred 8 px over a sharp background       measured 37.0 dB  → ≥ 34 dB
+//   radius ramp 0 … 16 px, both layers                 measured 31.9 dB  → ≥ 29 dB
+//   highlights (8 … 19.5× white) over the ramp, boost  measured 30.6 dB (6 blades 29.5) → ≥ 27
+// and mean |diff| ≤ 0.025 (measured ≤ 0.017). PSNR over the picture as shown (linear light
 // clipped to [0, 1]), peak 1. The test pictures are hard cases: 3 and 5 px checkers, which a
 // sparse half-resolution gather aliases; smooth footage fares better.
 TEST_CASE("fast path: close to the exact gather, no halo at an in-focus edge") {
@@ -539,7 +539,7 @@ TEST_CASE("fast path: close to the exact gather, no halo at an in-focus edge") {
     d.foreground_const = 1.0f;
     d.background_const = 0.0f;
     FastError e = fast_vs_exact("sharp subject, bg blurred 16 px", L, d, lens, &fast, &exact);
-    CHECK(e.psnr >= 32.0);
+    CHECK(e.psnr >= 31.0);
     CHECK(e.mean_abs <= 0.025);
     // No halo: the subject's red never reaches the background beside it, and the subject
     // stays as sharp as it is (the exact path gives the same: 0 and the subject's own texels).
@@ -595,12 +595,12 @@ TEST_CASE("fast path: close to the exact gather, no halo at an in-focus edge") {
     lens.highlight_threshold = 1.0;
     lens.highlight_gain = 0.5;
     e = fast_vs_exact("highlights over the ramp", hi, d, lens, &fast, &exact);
-    CHECK(e.psnr >= 28.0);
+    CHECK(e.psnr >= 27.0);
     CHECK(e.mean_abs <= 0.025);
     lens.blades = 6;
     lens.rotation_deg = 20.0;
     e = fast_vs_exact("highlights, 6 blades", hi, d, lens, &fast, &exact);
-    CHECK(e.psnr >= 28.0);
+    CHECK(e.psnr >= 27.0);
     CHECK(e.mean_abs <= 0.025);
     // Energy: the highlights' total light is kept within 10 %.
     double e_fast = 0.0, e_exact = 0.0;
