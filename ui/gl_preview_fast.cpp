@@ -29,7 +29,7 @@ void fit_area_table(const std::vector<float>& area, int steps, float out[3]) {
             m[a][3] += b[a];
         }
     }
-    if (m[2][2] < 3.0) {  // radii below 1 px only: the fast path gathers exactly there
+    if (m[2][2] < 3.0) {  // radii below 2 px only: π·r² + ½ stands in
         out[0] = static_cast<float>(M_PI);
         out[1] = 0.0f;
         out[2] = 0.5f;
@@ -103,7 +103,7 @@ void GlPreview::ensure_fast(int w, int h) {
     m_fast_tiles_h = (h + kFastTileSize - 1) / kFastTileSize;
     for (GLuint* t : {&m_fast_tiles, &m_fast_dilated})
         allocate(*t, GL_RGBA32F, m_fast_tiles_w, m_fast_tiles_h, GL_RGBA, nullptr);
-    // Bilinear: the gather samples between texels, the resolve upsamples the sums.
+    // Bilinear: the resolve upsamples the sums and reads the sources' neighbourhood.
     for (GLuint* t : {&m_half_bg, &m_half_fg, &m_half_sum[0], &m_half_sum[1]})
         allocate(*t, GL_RGBA32F, m_half_w, m_half_h, GL_RGBA, nullptr, true);
     for (GLuint* t : {&m_half_alpha, &m_half_weight[0], &m_half_weight[1]})
