@@ -44,8 +44,8 @@ void main() {
     float big_r = u_foreground != 0 ? tile.y : tile.x;
     o_sum = vec4(0.0);
     o_weight = vec4(0.0);
-    // No early return: a branch that differs between neighbouring pixels runs both sides on
-    // software GL (masked SIMD); a loop of 0 iterations costs nothing.
+    // Software GL runs every line for every pixel (masked SIMD) and a loop until no pixel is
+    // left in it: a skipped texel costs one masked iteration, not the tile's sample count.
     bool skip = big_r <= u_small_radius || (u_foreground != 0 && tile.z <= 0.0);
     vec2 centre = 2.0 * vec2(h) + 1.0;  // full-res px; equals a pixel centre ± ½
     ivec2 half_n = textureSize(u_src_tx, 0);
