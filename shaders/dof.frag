@@ -13,8 +13,10 @@
 //   in-focus foreground edge does not bleed onto the blurred background, and a blurred
 //   foreground edge reveals the background layer behind it.
 //   Early pass-through: window floor(R_tile + ½) = 0 → the pixel itself.
+//   The loop: gather_exact (dof_gather_lib.glsl).
 // CPU twin: gather and render_dof (engine/render/preview.cpp).
 #include "preview_lib.glsl"
+#include "dof_gather_lib.glsl"
 
 uniform sampler2D u_prep0_tx;       // (a·c', r)
 uniform sampler2D u_prep1_tx;       // (a, 1/K)
@@ -30,40 +32,8 @@ layout(location = 0) out vec4 o_color;
 
 void main() {
     ivec2 p = ivec2(gl_FragCoord.xy);
-    ivec2 n = textureSize(u_prep0_tx, 0);
     float rwin = texelFetch(u_tiles_tx, p / u_tile_size, 0).r;
-    int half_w = int(floor(rwin + 0.5));
-    vec4 layer;
-    if (half_w == 0) {  // early pass-through: nothing within reach is blurred
-        layer = vec4(texelFetch(u_prep0_tx, p, 0).rgb, texelFetch(u_prep1_tx, p, 0).r);
-    } else {
-        float sr = 0.0, sg = 0.0, sb = 0.0, sa = 0.0, sw = 0.0;
-        // Taps with dx² + dy² ≥ (R + ½)² add exactly 0 (ρ_n ≥ ρ): skip them per row (+1 px
-        // against rounding; the twin need not skip the same ones).
-        float reach2 = (rwin + 0.5) * (rwin + 0.5);
-        for (int dy = -half_w; dy <= half_w; ++dy) {
-            int qy = p.y + dy;
-            if (qy < 0 || qy >= n.y) continue;
-            int span = min(half_w, int(sqrt(max(reach2 - float(dy * dy), 0.0))) + 1);
-            for (int dx = -span; dx <= span; ++dx) {
-                int qx = p.x + dx;
-                if (qx < 0 || qx >= n.x) continue;
-                vec4 p0 = texelFetch(u_prep0_tx, ivec2(qx, qy), 0);
-                vec2 p1 = texelFetch(u_prep1_tx, ivec2(qx, qy), 0).rg;
-                float rho = texelFetch(u_shape_tx, ivec2(u_window - dx, u_window - dy), 0).r;
-                float rq = p0.a;
-                float edge = rq - rho + 0.5;
-                if (edge <= 0.0) continue;
-                float wgt = disk_kernel(rq - rho, u_beta) * min(edge, 1.0) * p1.g;
-                sr += wgt * p0.r;
-                sg += wgt * p0.g;
-                sb += wgt * p0.b;
-                sa += wgt * p1.r;
-                sw += wgt;
-            }
-        }
-        layer = vec4(sr / sw, sg / sw, sb / sw, sa / sw);
-    }
+    vec4 layer = gather_exact(u_prep0_tx, u_prep1_tx, u_shape_tx, p, rwin, u_window, u_beta);
     if (u_over != 0) {
         vec3 b = texelFetch(u_background_tx, p, 0).rgb;
         vec3 c;

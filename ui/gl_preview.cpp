@@ -6,10 +6,12 @@
 #include <GL/glext.h>
 
 #include <algorithm>
+#include <chrono>
 #include <fstream>
 #include <sstream>
 #include <vector>
 
+#include "gl_preview_util.h"
 #include "util/error.h"
 
 #ifndef SHADER_SOURCE_DIR
@@ -20,6 +22,11 @@ namespace refocus {
 
 namespace {
 
+double now_ms() {
+    using namespace std::chrono;
+    return duration<double, std::milli>(steady_clock::now().time_since_epoch()).count();
+}
+
 std::string read_text(const std::string& path) {
     std::ifstream in(path, std::ios::binary);
     if (!in) throw Error(file_error(path, "cannot open shader source"));
@@ -28,8 +35,10 @@ std::string read_text(const std::string& path) {
     return ss.str();
 }
 
-// Splices `#include "name"` lines (resolved in `dir`); GLSL itself has no include.
-std::string load_source(const std::string& dir, const std::string& name) {
+// Splices `#include "name"` lines (resolved in `dir`); GLSL itself has no include. `defines`
+// (lines such as "#define X 1\n") go after the #version line: one source, several variants.
+std::string load_source(const std::string& dir, const std::string& name,
+                        const std::string& defines) {
     std::istringstream in(read_text(dir + "/" + name));
     std::string line, out;
     while (std::getline(in, line)) {
@@ -43,12 +52,14 @@ std::string load_source(const std::string& dir, const std::string& name) {
             out += line;
         }
         out += '\n';
+        if (line.compare(0, 8, "#version") == 0) out += defines;
     }
     return out;
 }
 
-GLuint compile(GLenum type, const std::string& dir, const std::string& name) {
-    const std::string src = load_source(dir, name);
+GLuint compile(GLenum type, const std::string& dir, const std::string& name,
+               const std::string& defines) {
+    const std::string src = load_source(dir, name, defines);
     GLuint s = glCreateShader(type);
     const char* p = src.c_str();
     glShaderSource(s, 1, &p, nullptr);
@@ -66,11 +77,16 @@ GLuint compile(GLenum type, const std::string& dir, const std::string& name) {
     return s;
 }
 
-GLuint link_program(const std::string& dir, const std::string& frag) {
-    GLuint vs = compile(GL_VERTEX_SHADER, dir, "fullscreen.vert");
+}  // namespace
+
+namespace gl_util {
+
+GLuint link_program(const std::string& dir, const std::string& frag, const std::string& vert,
+                    const std::string& defines) {
+    GLuint vs = compile(GL_VERTEX_SHADER, dir, vert, "");
     GLuint fs = 0;
     try {
-        fs = compile(GL_FRAGMENT_SHADER, dir, frag);
+        fs = compile(GL_FRAGMENT_SHADER, dir, frag, defines);
     } catch (...) {
         glDeleteShader(vs);
         throw;
@@ -94,38 +110,28 @@ GLuint link_program(const std::string& dir, const std::string& frag) {
     return prog;
 }
 
+namespace {
 GLuint new_texture() {
     GLuint t = 0;
     glGenTextures(1, &t);
     glBindTexture(GL_TEXTURE_2D, t);
-    // Every pass reads with texelFetch; nearest keeps the sampler complete without mipmaps.
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
     return t;
 }
+}  // namespace
 
-void allocate(GLuint& tex, GLenum internal, int w, int h, GLenum format, const float* data) {
+void allocate(GLuint& tex, GLenum internal, int w, int h, GLenum format, const float* data,
+              bool linear) {
     if (!tex) tex = new_texture();
     glBindTexture(GL_TEXTURE_2D, tex);
+    // The exact passes read with texelFetch; nearest keeps the sampler complete without mipmaps.
+    const GLint filter = linear ? GL_LINEAR : GL_NEAREST;
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, filter);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, filter);
     glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
     glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
     glTexImage2D(GL_TEXTURE_2D, 0, internal, w, h, 0, format, GL_FLOAT, data);
-}
-
-// Uploads 1/2/4 channels as R32F/RG32F/RGBA32F; 3 channels become RGBA with a = `alpha_fill`,
-// or a = `alpha` (1 channel) when given.
-void upload(GLuint& tex, const Image& img, const Image* alpha = nullptr) {
-    if (img.channels == 1) return allocate(tex, GL_R32F, img.width, img.height, GL_RED, img.data());
-    if (img.channels == 2) return allocate(tex, GL_RG32F, img.width, img.height, GL_RG, img.data());
-    std::vector<float> rgba(static_cast<size_t>(img.width) * img.height * 4);
-    for (size_t i = 0, n = static_cast<size_t>(img.width) * img.height; i < n; ++i) {
-        for (int c = 0; c < 3; ++c) rgba[i * 4 + c] = img.pixels[i * img.channels + c];
-        rgba[i * 4 + 3] = alpha ? alpha->pixels[i]
-                                : (img.channels >= 4 ? img.pixels[i * img.channels + 3] : 1.0f);
-    }
-    allocate(tex, GL_RGBA32F, img.width, img.height, GL_RGBA, rgba.data());
 }
 
 void delete_texture(GLuint& t) {
@@ -146,10 +152,32 @@ void set_float(GLuint prog, const char* name, double v) {
     glUniform1f(glGetUniformLocation(prog, name), static_cast<float>(v));
 }
 
+}  // namespace gl_util
+
+namespace {
+
+using namespace gl_util;
+
+// Uploads 1/2/4 channels as R32F/RG32F/RGBA32F; 3 channels become RGBA with a = `alpha_fill`,
+// or a = `alpha` (1 channel) when given.
+void upload(GLuint& tex, const Image& img, const Image* alpha = nullptr) {
+    if (img.channels == 1) return allocate(tex, GL_R32F, img.width, img.height, GL_RED, img.data());
+    if (img.channels == 2) return allocate(tex, GL_RG32F, img.width, img.height, GL_RG, img.data());
+    std::vector<float> rgba(static_cast<size_t>(img.width) * img.height * 4);
+    for (size_t i = 0, n = static_cast<size_t>(img.width) * img.height; i < n; ++i) {
+        for (int c = 0; c < 3; ++c) rgba[i * 4 + c] = img.pixels[i * img.channels + c];
+        rgba[i * 4 + 3] = alpha ? alpha->pixels[i]
+                                : (img.channels >= 4 ? img.pixels[i * img.channels + 3] : 1.0f);
+    }
+    allocate(tex, GL_RGBA32F, img.width, img.height, GL_RGBA, rgba.data());
+}
+
 // GL state the passes change, put back on scope exit (the studio draws ImGui after us).
 struct StateGuard {
     GLint fbo = 0, viewport[4] = {0, 0, 0, 0}, program = 0, vao = 0, active = 0;
-    GLboolean blend, depth, scissor;
+    GLint blend_src_rgb = 0, blend_dst_rgb = 0, blend_src_a = 0, blend_dst_a = 0;
+    GLint blend_eq_rgb = 0, blend_eq_a = 0;
+    GLboolean blend, depth, scissor, point_size;
     StateGuard() {
         glGetIntegerv(GL_DRAW_FRAMEBUFFER_BINDING, &fbo);
         glGetIntegerv(GL_VIEWPORT, viewport);
@@ -159,6 +187,13 @@ struct StateGuard {
         blend = glIsEnabled(GL_BLEND);
         depth = glIsEnabled(GL_DEPTH_TEST);
         scissor = glIsEnabled(GL_SCISSOR_TEST);
+        point_size = glIsEnabled(GL_PROGRAM_POINT_SIZE);
+        glGetIntegerv(GL_BLEND_SRC_RGB, &blend_src_rgb);
+        glGetIntegerv(GL_BLEND_DST_RGB, &blend_dst_rgb);
+        glGetIntegerv(GL_BLEND_SRC_ALPHA, &blend_src_a);
+        glGetIntegerv(GL_BLEND_DST_ALPHA, &blend_dst_a);
+        glGetIntegerv(GL_BLEND_EQUATION_RGB, &blend_eq_rgb);
+        glGetIntegerv(GL_BLEND_EQUATION_ALPHA, &blend_eq_a);
         glDisable(GL_BLEND);
         glDisable(GL_DEPTH_TEST);
         glDisable(GL_SCISSOR_TEST);
@@ -172,6 +207,13 @@ struct StateGuard {
         if (blend) glEnable(GL_BLEND);
         if (depth) glEnable(GL_DEPTH_TEST);
         if (scissor) glEnable(GL_SCISSOR_TEST);
+        if (point_size)
+            glEnable(GL_PROGRAM_POINT_SIZE);
+        else
+            glDisable(GL_PROGRAM_POINT_SIZE);
+        glBlendFuncSeparate(static_cast<GLenum>(blend_src_rgb), static_cast<GLenum>(blend_dst_rgb),
+                            static_cast<GLenum>(blend_src_a), static_cast<GLenum>(blend_dst_a));
+        glBlendEquationSeparate(static_cast<GLenum>(blend_eq_rgb), static_cast<GLenum>(blend_eq_a));
     }
 };
 
@@ -201,7 +243,15 @@ GlPreview::~GlPreview() {
                       &m_prep0[0], &m_prep0[1],   &m_prep1[0],  &m_prep1[1],   &m_tiles[0],
                       &m_tiles[1], &m_blurred_bg, &m_result,    &m_shape_tx,   &m_area_tx})
         delete_texture(*t);
-    for (GLuint p : {m_composite_prog, m_prep_prog, m_tiles_prog, m_dof_prog})
+    for (GLuint* t :
+         {&m_fast_tiles, &m_fast_dilated, &m_half_bg, &m_half_fg, &m_half_alpha, &m_half_sprite[0],
+          &m_half_sprite[1], &m_half_spot[0], &m_half_spot[1], &m_half_sum[0], &m_half_sum[1],
+          &m_half_weight[0], &m_half_weight[1], &m_sprite_sum[0], &m_sprite_sum[1]})
+        delete_texture(*t);
+    for (GLuint p : {m_composite_prog, m_prep_prog, m_tiles_prog, m_dof_prog, m_fast_tiles_prog,
+                     m_fast_dilate_prog, m_fast_down_prog, m_fast_gather_prog, m_sprite_prog,
+                     m_fast_prog[0][1], m_fast_prog[0][2], m_fast_prog[1][0], m_fast_prog[1][1],
+                     m_fast_prog[1][2]})
         if (p) glDeleteProgram(p);
     if (m_vao) glDeleteVertexArrays(1, &m_vao);
     if (m_fbo) glDeleteFramebuffers(1, &m_fbo);
@@ -296,6 +346,7 @@ void GlPreview::ensure_tables(const PreviewLens& lens) {
     const int side = 2 * m_window + 1;
     allocate(m_shape_tx, GL_R32F, side, side, GL_RED, shape.data());
     allocate(m_area_tx, GL_R32F, static_cast<int>(area.size()), 1, GL_RED, area.data());
+    fit_area_table(area, kPreviewAreaSteps, m_area_fit);
     m_table_beta = lens.beta;
     m_table_blades = lens.blades;
     m_table_rotation = lens.rotation_deg;
@@ -303,16 +354,17 @@ void GlPreview::ensure_tables(const PreviewLens& lens) {
 }
 
 void GlPreview::draw(unsigned int program, int w, int h,
-                     std::initializer_list<unsigned int> targets) {
+                     std::initializer_list<unsigned int> targets, int count,
+                     unsigned int primitive) {
     glBindFramebuffer(GL_FRAMEBUFFER, m_fbo);
-    GLenum buffers[4];
+    GLenum buffers[8];
     int i = 0;
     for (unsigned int t : targets) {
         glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0 + i, GL_TEXTURE_2D, t, 0);
         buffers[i] = GL_COLOR_ATTACHMENT0 + i;
         ++i;
     }
-    for (int j = i; j < 4; ++j)
+    for (int j = i; j < 8; ++j)
         glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0 + j, GL_TEXTURE_2D, 0, 0);
     glDrawBuffers(i, buffers);
     const GLenum status = glCheckFramebufferStatus(GL_FRAMEBUFFER);
@@ -324,11 +376,17 @@ void GlPreview::draw(unsigned int program, int w, int h,
         }() + ")");
     glViewport(0, 0, w, h);
     glBindVertexArray(m_vao);
-    glDrawArrays(GL_TRIANGLES, 0, 3);
+    if (count < 0) return;  // the targets bound, to be cleared
+    if (count > 0)
+        glDrawArrays(primitive, 0, count);
+    else
+        glDrawArrays(GL_TRIANGLES, 0, 3);
 }
 
-void GlPreview::render(const PreviewLens& lens) {
+void GlPreview::render(const PreviewLens& lens, PreviewQuality quality) {
     check_preview_lens(lens);
+    m_pass_times.clear();
+    m_pass_t0 = now_ms();
     if (m_width == 0) throw Error("GL preview: render() before set_frame() or set_layers()");
     if (m_need_composite && m_has_fg_atlas && !m_fg_frame)
         throw Error(
@@ -356,6 +414,7 @@ void GlPreview::render(const PreviewLens& lens) {
     if (m_result_is_composite) return;
 
     ensure_tables(lens);
+    mark_pass("composite");
     for (int layer = 0; layer < 2; ++layer) {
         const bool fg = layer == 1;
         glUseProgram(m_prep_prog);
@@ -372,7 +431,17 @@ void GlPreview::render(const PreviewLens& lens) {
         set_float(m_prep_prog, "u_highlight_gain", lens.highlight_gain);
         set_int(m_prep_prog, "u_area_steps", kPreviewAreaSteps);
         draw(m_prep_prog, m_width, m_height, {m_prep0[layer], m_prep1[layer]});
+    }
+    mark_pass("prep");
+    if (quality == PreviewQuality::Fast)
+        render_fast(lens);
+    else
+        render_exact(lens);
+}
 
+void GlPreview::render_exact(const PreviewLens& lens) {
+    for (int layer = 0; layer < 2; ++layer) {
+        const bool fg = layer == 1;
         glUseProgram(m_tiles_prog);
         bind_sampler(m_tiles_prog, "u_prep0_tx", 0, m_prep0[layer]);
         set_int(m_tiles_prog, "u_tile_size", kPreviewTileSize);
@@ -392,6 +461,15 @@ void GlPreview::render(const PreviewLens& lens) {
         set_float(m_dof_prog, "u_beta", lens.beta);
         draw(m_dof_prog, m_width, m_height, {fg ? m_result : m_blurred_bg});
     }
+    mark_pass("exact gather");
+}
+
+void GlPreview::mark_pass(const char* name) {
+    if (!m_timing) return;
+    glFinish();
+    const double t = now_ms();
+    m_pass_times.emplace_back(name, t - m_pass_t0);
+    m_pass_t0 = t;
 }
 
 Image GlPreview::read_texture(unsigned int tex, int w, int h, int channels) const {

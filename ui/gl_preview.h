@@ -5,6 +5,17 @@
 //   dof_tiles.frag  per layer: largest radius reaching each 8×8 tile (early pass-through)
 //   dof.frag        per layer: disk bokeh gather (paper eq. 2); the foreground pass composites
 //                   over the blurred background: out = F̂ + (1 − Â)·B̂
+// That is PreviewQuality::Exact, equal to the CPU twin to float rounding. PreviewQuality::Fast
+// (gl_preview_fast.cpp; GPU only, no CPU twin) keeps composite and prep and replaces the tiles
+// and the gather with the passes real-time engines use, an approximation of the exact result:
+//   dof_fast_tiles   max radius (and foreground α) per 16×16 tile, both layers
+//   dof_fast_dilate  … grown to what can reach each tile; R < ½: early pass-through
+//   dof_fast_down    half-resolution sources, highlights split off
+//   dof_fast_gather  per layer, half resolution: N-sample disk sums for tiles with R > 1.5 px
+//   dof_sprite       per layer: highlights as additive disk sprites, only where they are
+//   dof_fast         full resolution, per layer, one draw per tile class over its tiles only:
+//                    exact gather where R ≤ 1.5 px, else own term + upsampled sums + sprites;
+//                    the foreground's draws write out = F̂ + (1 − Â)·B̂
 // Works in a GL 3.3 core context (the studio's GLFW window) and headless on OSMesa (tests, the
 // benchmark). Needs a current context for its whole life; touches no GL state it does not put
 // back (framebuffer, viewport, program, vertex array, blend/depth/scissor enables).
@@ -22,11 +33,25 @@
 //   ImGui::Image((ImTextureID)(intptr_t)gp.result_texture(), ...);
 #include <initializer_list>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "io/image.h"
 #include "render/preview.h"
 
 namespace refocus {
+
+// Exact: the reference gather (every source within reach, equal to the CPU twin). Fast: the
+// real-time approximation for playback and scrubbing (docs/method.md, "The preview's depth of
+// field"); tests/gl/test_gl_preview.cpp bounds its error against Exact.
+enum class PreviewQuality { Exact, Fast };
+
+// Radii the fast path gathers exactly at full resolution (tiles whose dilated radius is at most
+// this), px; larger tiles are gathered at half resolution.
+constexpr float kFastSmallRadius = 1.5f;
+constexpr int kFastTileSize = 16;  // px per side of the fast path's tiles
+// Most samples (≤ 64) per half-resolution pixel of the fast path's disk gather.
+constexpr int kFastSamples = 20;
 
 class GlPreview {
   public:
@@ -51,7 +76,12 @@ class GlPreview {
     void set_depth(const PreviewDepth& depth);
 
     // Runs the passes. aperture 0 after a composite pass: the result is the composite.
-    void render(const PreviewLens& lens);
+    void render(const PreviewLens& lens, PreviewQuality quality = PreviewQuality::Exact);
+
+    // With timing on, render() waits for the GPU after each stage and records its time (ms) in
+    // pass_times() (the benchmark's per-pass figures; off in the studio: glFinish stalls).
+    void set_timing(bool on) { m_timing = on; }
+    const std::vector<std::pair<std::string, double>>& pass_times() const { return m_pass_times; }
 
     int width() const { return m_width; }
     int height() const { return m_height; }
@@ -68,7 +98,19 @@ class GlPreview {
   private:
     void ensure_size(int w, int h);
     void ensure_tables(const PreviewLens& lens);
-    void draw(unsigned int program, int w, int h, std::initializer_list<unsigned int> targets);
+    void render_exact(const PreviewLens& lens);
+    // gl_preview_fast.cpp
+    void render_fast(const PreviewLens& lens);
+    void ensure_fast(int w, int h);
+    void fast_sources(const PreviewLens& lens);
+    void fast_gather(const PreviewLens& lens);
+    void fast_resolve(const PreviewLens& lens);
+    void lens_uniforms(unsigned int prog, const PreviewLens& lens);
+    void mark_pass(const char* name);
+    // A fullscreen triangle, or `count` vertices of `primitive` (the sprites' points, the tile
+    // classes' quads), into `targets` (≤ 8); count < 0 binds the targets and the viewport only.
+    void draw(unsigned int program, int w, int h, std::initializer_list<unsigned int> targets,
+              int count = 0, unsigned int primitive = 0 /* GL_POINTS */);
     Image read_texture(unsigned int tex, int w, int h, int channels) const;
 
     std::string m_dir;
@@ -94,6 +136,21 @@ class GlPreview {
     int m_window = -1;
     double m_table_beta = -1.0, m_table_rotation = 0.0, m_table_max_radius = -1.0;
     int m_table_blades = -1;
+    float m_area_fit[3] = {0.0f, 0.0f, 0.5f};  // K(r) ≈ c2·r² + c1·r + c0 (fast path)
+    // fast path: programs, tiles, half-resolution sources and sums, sprite sums
+    unsigned int m_fast_tiles_prog = 0, m_fast_dilate_prog = 0, m_fast_down_prog = 0;
+    unsigned int m_fast_gather_prog = 0, m_sprite_prog = 0;
+    unsigned int m_fast_prog[2][3] = {{0, 0, 0}, {0, 0, 0}};  // [layer][tile class]
+    int m_fast_w = 0, m_fast_h = 0, m_half_w = 0, m_half_h = 0, m_fast_tiles_w = 0,
+        m_fast_tiles_h = 0;
+    unsigned int m_fast_tiles = 0, m_fast_dilated = 0;
+    unsigned int m_half_bg = 0, m_half_fg = 0, m_half_alpha = 0, m_half_sprite[2] = {0, 0};
+    unsigned int m_half_spot[2] = {0, 0};
+    unsigned int m_half_sum[2] = {0, 0}, m_half_weight[2] = {0, 0}, m_sprite_sum[2] = {0, 0};
+    // timing
+    bool m_timing = false;
+    double m_pass_t0 = 0.0;
+    std::vector<std::pair<std::string, double>> m_pass_times;
 };
 
 }  // namespace refocus

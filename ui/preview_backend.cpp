@@ -47,13 +47,15 @@ class GlslPreview : public PreviewBackend {
             m_gl.set_depth(*depth);
         else
             l.aperture = 0.0;
-        m_gl.render(l);
+        m_gl.render(l, m_quality);
         return m_gl.read_result();  // waits for the GPU: the render's full cost
     }
+    void set_quality(PreviewQuality q) override { m_quality = q; }
 
   private:
     GlPreview m_gl;
     int64_t m_edits_version = -2;
+    PreviewQuality m_quality = PreviewQuality::Fast;
 };
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <string>
 
 #include "edit/recompose.h"
+#include "gl_preview.h"
 #include "render/preview.h"
 
 namespace refocus {
@@ -28,6 +29,9 @@ class PreviewBackend {
     // with the edits drawn in through the frame's UV maps (paper Fig. 1). Linear RGB.
     virtual Image render(const FrameMaps& maps, const EditAtlases& edits, const PreviewDepth* depth,
                          const PreviewLens& lens) = 0;
+    // The GLSL passes' depth of field: Fast (playback and scrubbing) or Exact. The CPU twin
+    // renders the exact gather whatever is asked (it has no fast path).
+    virtual void set_quality(PreviewQuality) {}
 };
 
 std::unique_ptr<PreviewBackend> make_cpu_preview(int threads);

@@ -109,6 +109,20 @@ void Studio::draw_menu() {
                 if (ImGui::MenuItem(label, nullptr, now == b)) m_ctx.renderer->set_backend(b);
             ImGui::EndMenu();
         }
+        if (ImGui::BeginMenu("Preview quality")) {
+            const PreviewQuality now = m_ctx.renderer->quality();
+            if (ImGui::MenuItem("Fast", nullptr, now == PreviewQuality::Fast))
+                m_ctx.renderer->set_quality(PreviewQuality::Fast);
+            item_tooltip(
+                "The real-time depth of field: half-resolution disk gather, highlights as\n"
+                "sprites; fast enough to play and scrub on software GL");
+            if (ImGui::MenuItem("Exact", nullptr, now == PreviewQuality::Exact))
+                m_ctx.renderer->set_quality(PreviewQuality::Exact);
+            item_tooltip(
+                "The reference gather, every source within reach: what exports render;\n"
+                "seconds a frame on software GL");
+            ImGui::EndMenu();
+        }
         if (ImGui::BeginMenu("Proxy")) {
             // The viewer's picture size; exports always render at full size.
             const int now = m_ctx.renderer->proxy();

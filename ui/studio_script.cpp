@@ -212,6 +212,15 @@ std::optional<bool> StudioScript::view_step(Studio& st, const json& step, bool f
                                                         : ViewRenderer::Backend::Auto);
         return m_settle > 2;
     }
+    if (step.contains("preview_quality")) {
+        const std::string q = step["preview_quality"];
+        if (q != "fast" && q != "exact")
+            throw Error("preview_quality is fast or exact, not '" + q + "'");
+        if (first)
+            st.m_ctx.renderer->set_quality(q == "fast" ? PreviewQuality::Fast
+                                                       : PreviewQuality::Exact);
+        return m_settle > 2;
+    }
     if (step.contains("proxy")) {
         const std::string p = step["proxy"];
         const int d = p == "auto" ? 0 : p == "full" ? 1 : p == "half" ? 2 : p == "quarter" ? 4 : -1;

@@ -27,6 +27,7 @@
 //   {"layout": {"side_width": w, "timeline_height": h}}   {"autosave": true}  {"touch": path}
 //   {"wait_fitting": step}  {"restore_autosave": true}  {"crash": true} (SIGKILL, as kill -9)
 //   {"fit": {..., "wait": false}} starts the fit and goes on   {"proxy": "auto|full|half|quarter"}
+//   {"preview_renderer": "auto|gpu|cpu"}   {"preview_quality": "fast|exact"}  (View menu)
 //   {"expect": {..., "autosave_offered": b, "modified": b}}   {"quit": true}
 //   {"drop": path}  (as if dropped on the window: opens it like File > Open; waits for it)
 //   {"browser": {"dialog": "open|new|new_folder|save_as|atlas_export|atlas_import", "dir": d,

@@ -119,6 +119,14 @@ void ViewRenderer::set_backend(Backend b) {
     m_cv.notify_all();
 }
 
+void ViewRenderer::set_quality(PreviewQuality q) {
+    m_quality = q;
+    std::lock_guard<std::mutex> lk(m_mutex);
+    m_scene.generation += 1;  // every refocused picture again, at the other quality
+    m_scene_ptr = std::make_shared<ViewScene>(m_scene);
+    m_cv.notify_all();
+}
+
 void ViewRenderer::set_proxy(int proxy) {
     std::lock_guard<std::mutex> lk(m_mutex);
     m_proxy = proxy;
@@ -146,8 +154,10 @@ std::string ViewRenderer::proxy_name() const {
 std::string ViewRenderer::backend_name() const {
     const Backend b = m_backend;
     if (b == Backend::Cpu || !m_offscreen) return "CPU";
-    if (b == Backend::Gpu) return "GPU (GLSL)";
-    return is_software_gl(m_gl_renderer) ? "GLSL (auto; software GL)" : "GPU (GLSL, auto)";
+    const char* q = m_quality == PreviewQuality::Fast ? ", fast" : ", exact";
+    if (b == Backend::Gpu) return std::string("GPU (GLSL") + q + ")";
+    return is_software_gl(m_gl_renderer) ? std::string("GLSL (auto; software GL") + q + ")"
+                                         : std::string("GPU (GLSL, auto") + q + ")";
 }
 
 std::shared_ptr<const FitWorker::ViewFrame> ViewRenderer::layers_at(int frame) const {
@@ -264,7 +274,10 @@ PreviewBackend& ViewRenderer::preview() {
             m_error = "the GLSL preview is unavailable, the CPU renders it: " + m_gpu_error;
         }
     }
-    if (gpu && m_gpu) return *m_gpu;
+    if (gpu && m_gpu) {
+        m_gpu->set_quality(m_quality);
+        return *m_gpu;
+    }
     if (!m_cpu) m_cpu = make_cpu_preview(std::max(1u, std::thread::hardware_concurrency()));
     return *m_cpu;
 }

@@ -63,6 +63,10 @@ class ViewRenderer {
     void set_wanted(const std::vector<int>& modes, int playhead, bool ahead);
     void set_backend(Backend b);
     Backend backend() const { return m_backend; }
+    // The GLSL depth of field: Fast (the default: playback and scrubbing at frame rate on
+    // software GL) or Exact (the reference gather, what exports compute). The CPU twin is exact.
+    void set_quality(PreviewQuality q);
+    PreviewQuality quality() const { return m_quality; }
     std::string backend_name() const;
 
     // The fit's layers at `frame` for the scene last posted, once rendered (click-to-focus reads
@@ -96,6 +100,7 @@ class ViewRenderer {
     GLFWwindow* m_offscreen;
     std::string m_gl_renderer;
     std::atomic<Backend> m_backend{Backend::Auto};
+    std::atomic<PreviewQuality> m_quality{PreviewQuality::Fast};
 
     mutable std::mutex m_mutex;
     std::condition_variable m_cv;
