@@ -68,11 +68,18 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     m_bg.warp = torch::zeros({T, 2, gh, gw});
 
     torch::NoGradGuard no_grad;
-    const auto sharpness = (d.radius + 0.5).pow(-4.0).unsqueeze(1);  // [T,1,H,W]
+    // Derived per-frame maps are made frame by frame into clip arrays (FitData::per_frame): a
+    // long clip's would otherwise be clip-sized temporaries.
+    const auto sharpness =
+        d.per_frame([&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); });
     m_two_layers = d.has_subject && d.mask.defined();
     torch::Tensor bg_weight = sharpness;
+    // Where each layer is seen: the mask's complement, or everywhere with one layer.
+    const auto bg_region = d.per_frame(
+        [&](int64_t t) { return m_two_layers ? 1.0 - d.mask[t] : torch::ones_like(sharpness[t]); });
     if (m_two_layers) {
-        bg_weight = sharpness * (1.0 - d.mask).clamp_min(1e-3);
+        bg_weight =
+            d.per_frame([&](int64_t t) { return sharpness[t] * bg_region[t].clamp_min(1e-3); });
         // Foreground mapping: translate so that each frame's subject centroid lands on one point.
         std::vector<double> vx, vy, sc;
         subject_track(d, vx, vy, &sc);
@@ -91,7 +98,8 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         m_fg.learn_warp = true;
         rescale(m_fg, opts.atlas_scale);
         m_fg.warp = torch::zeros({T, 2, gh, gw});
-        const auto fg_weight = sharpness * d.mask.clamp_min(1e-3);
+        const auto fg_weight =
+            d.per_frame([&](int64_t t) { return sharpness[t] * d.mask[t].clamp_min(1e-3); });
         // The subject's track may be off by a few px where the focus crosses it (its flow sees
         // the wall through its blurred edge); the reblurred sharpest views pull it back, which
         // takes corrections up to 10 px (docs/method.md, Model). A centroid track keeps 4 px.
@@ -126,14 +134,16 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         const auto subject_r = d.layer_radius(true).unsqueeze(1);
         auto fused_mask = fuse_frames(
             torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
-            m_alpha_h, m_alpha_w, d.mask, (subject_r + 0.5).pow(-4.0));
+            m_alpha_h, m_alpha_w, [&](int64_t t) { return d.mask[t]; },
+            [&](int64_t t) { return (subject_r[t] + 0.5).pow(-4.0); });
         m_alpha_atlas = torch::logit(fused_mask.unsqueeze(0).clamp(0.01, 0.99));
         m_alpha_logit = torch::zeros({T, 1, (H + 3) / 4, (W + 3) / 4});
         // The masks are trusted as much as the subject is sharp there (1 at r = 0, 0.2 at 4 px,
         // 0.07 at 7 px), in absolute terms: automatic masks of a blurred subject are blobs its
         // blur widens, and a subject never in focus earns no trust by being the clip's sharpest
         // (docs/method.md, Model).
-        m_boot_weight = 1.0 / (1.0 + (subject_r / 2.0).pow(2));
+        m_boot_weight =
+            d.per_frame([&](int64_t t) { return 1.0 / (1.0 + (subject_r[t] / 2.0).pow(2)); });
     }
     // A camera judged static (corners move < 2 px, prepare) maps every frame by the identity, as
     // its feature homographies are mostly noise (a focus change alone moves features). A
@@ -141,8 +151,8 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     // fused atlas finds; on a locked-off camera it finds ~0.
     if (!d.static_camera || m_opts.static_align) {
         const auto before = m_bg.to_atlas.clone();
-        refine_alignment(m_bg, bg_weight, m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness),
-                         false, d.static_camera ? 2.0 : 4.0, d.static_camera);
+        refine_alignment(m_bg, bg_weight, bg_region, false, d.static_camera ? 2.0 : 4.0,
+                         d.static_camera);
         // Corrections under 0.3 px are ECC's noise on a locked-off camera and are dropped: the
         // identity keeps its frames from flickering (docs/method.md, What is skipped when).
         if (d.static_camera &&
@@ -152,9 +162,8 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     }
     init_levels(m_bg, fuse(m_bg, bg_weight));
     if (m_opts.deblur_path) {
-        auto line = make_deblur_path(m_bg, d.layer_radius(false), bg_weight,
-                                     m_two_layers ? 1.0 - d.mask : torch::ones_like(sharpness),
-                                     "background");
+        auto line =
+            make_deblur_path(m_bg, d.layer_radius(false), bg_weight, bg_region, "background");
         if (!line.empty()) notes.push_back(line);
         if (m_two_layers) {
             line = make_deblur_path(m_fg, d.layer_radius(true), sharpness * d.mask.clamp_min(1e-3),
@@ -179,19 +188,25 @@ void FastModel::update_tv_weights() {
     // current geometry: a checkpoint may bring its own (adopt_geometry).
     torch::NoGradGuard no_grad;
     const FitData& d = m_data;
-    const auto sharpness = (d.radius + 0.5).pow(-4.0).unsqueeze(1);
+    auto sharpness = [&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); };
     m_bg.tv_weight = m_fg.tv_weight = torch::Tensor();
     if (int(m_opts.tv_radius_layers) & 1) {
-        auto views = m_two_layers ? (1.0 - d.mask).clamp_min(1e-3) : torch::ones_like(sharpness);
-        m_bg.tv_weight = tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1), sharpness * views,
-                                       views, m_opts.tv_radius_fade);
+        auto views = d.per_frame([&](int64_t t) {
+            return m_two_layers ? (1.0 - d.mask[t]).clamp_min(1e-3)
+                                : torch::ones({1, d.height, d.width});
+        });
+        m_bg.tv_weight =
+            tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1),
+                          d.per_frame([&](int64_t t) { return sharpness(t) * views[t]; }), views,
+                          m_opts.tv_radius_fade);
     }
     if (m_two_layers && (int(m_opts.tv_radius_layers) & 2)) {
-        auto views = d.mask.clamp_min(1e-3);
+        auto views = d.per_frame([&](int64_t t) { return d.mask[t].clamp_min(1e-3); });
         // The subject's layer keeps the weight at any radius (no fade): a subject blurred in
         // every frame (synth pan's, 7 px) gains from it (docs/method.md, Model).
-        m_fg.tv_weight =
-            tv_weight_map(m_fg, d.layer_radius(true).unsqueeze(1), sharpness * views, views, 0.0);
+        m_fg.tv_weight = tv_weight_map(
+            m_fg, d.layer_radius(true).unsqueeze(1),
+            d.per_frame([&](int64_t t) { return sharpness(t) * views[t]; }), views, 0.0);
     }
 }
 
@@ -204,8 +219,9 @@ torch::Tensor FastModel::tv_weight_map(const Atlas& a, const torch::Tensor& radi
     if (!(cap > 1)) return torch::Tensor();
     auto sharp = fuse(a, weight, radius);  // [1,Ha,Wa], ~ the smallest radius seen
     auto mean = fuse(a, views, radius);    // each view alike
-    auto f = tv_radius_factor(sharp, mean, fuse(a, views, radius * radius), m_opts.tv_radius_gain,
-                              cap, m_opts.tv_radius_spread, fade);
+    auto square = m_data.per_frame([&](int64_t t) { return radius[t] * radius[t]; });
+    auto f = tv_radius_factor(sharp, mean, fuse(a, views, square), m_opts.tv_radius_gain, cap,
+                              m_opts.tv_radius_spread, fade);
     return f.unsqueeze(0);
 }
 
@@ -405,8 +421,11 @@ torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
     auto inside = F::pad(torch::ones({1, 1, m_data.height, m_data.width}),
                          F::PadFuncOptions({P, P, P, P}).value(1e-3));
     auto shift = translation(-P, -P).to(a.to_atlas.dtype());
-    return fuse_frames(torch::matmul(a.to_atlas, shift), a.height, a.width, pad_edges(src, P),
-                       pad_edges(weight, P) * inside);
+    // Frame by frame: the padded clip would be a clip-sized temporary.
+    return fuse_frames(
+        torch::matmul(a.to_atlas, shift), a.height, a.width,
+        [&](int64_t t) { return pad_edges(src[t].unsqueeze(0), P)[0]; },
+        [&](int64_t t) { return (pad_edges(weight[t].unsqueeze(0), P) * inside)[0]; });
 }
 
 void FastModel::init_levels(Atlas& a, const torch::Tensor& fused) {

@@ -5,6 +5,8 @@
 // both presets start from.
 #include <torch/types.h>
 
+#include <functional>
+
 #include <string>
 #include <vector>
 
@@ -60,5 +62,10 @@ torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& gr
 // Returns [C,height,width] (not clamped).
 torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
                           const torch::Tensor& src, const torch::Tensor& weight);
+// The same with each frame's source ([C,H,W]) and weight ([1,H,W]) made on demand: a long clip's
+// derived frames (padded, weighted) then need not all exist at once.
+torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
+                          const std::function<torch::Tensor(int64_t)>& src,
+                          const std::function<torch::Tensor(int64_t)>& weight);
 
 }  // namespace refocus

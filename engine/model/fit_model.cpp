@@ -11,6 +11,16 @@ torch::Tensor FitData::clip_array(at::IntArrayRef shape) const {
     return mapped_dir.empty() ? torch::zeros(shape) : mapped_tensor(shape, mapped_dir);
 }
 
+torch::Tensor FitData::per_frame(const std::function<torch::Tensor(int64_t)>& fn) const {
+    const torch::Tensor first = fn(0);
+    std::vector<int64_t> shape{frames};
+    for (int64_t s : first.sizes()) shape.push_back(s);
+    torch::Tensor out = clip_array(shape);
+    out[0].copy_(first);
+    for (int64_t t = 1; t < frames; ++t) out[t].copy_(fn(t));
+    return out;
+}
+
 void FitModel::load_state(const std::map<std::string, torch::Tensor>& s) {
     torch::NoGradGuard g;
     for (auto& [name, t] : state()) {

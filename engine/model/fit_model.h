@@ -6,6 +6,7 @@
 // models own their parameters and priors.
 #include <torch/types.h>
 
+#include <functional>
 #include <map>
 #include <mutex>
 #include <string>
@@ -53,6 +54,8 @@ struct FitData {
     fs::path mapped_dir;
     // A zero-filled float array for per-frame data ([T, ...]): mapped when mapped_dir is set.
     torch::Tensor clip_array(at::IntArrayRef shape) const;
+    // fn(t) of every frame stacked into a clip array, [T, fn(0)'s sizes], one frame at a time.
+    torch::Tensor per_frame(const std::function<torch::Tensor(int64_t)>& fn) const;
 
     const torch::Tensor& layer_radius(bool foreground) const {
         const torch::Tensor& r = foreground ? radius_fg : radius_bg;

@@ -49,8 +49,8 @@ torch::Tensor mapped_tensor(at::IntArrayRef shape, const fs::path& dir) {
     fs::create_directories(dir, ec);
     const int fd = open_unlinked(dir);
     if (fd < 0)
-        throw Error(file_error(dir.string(), std::string("cannot make a working file: ") +
-                                                 std::strerror(errno)));
+        throw Error(file_error(dir.string(),
+                               std::string("cannot make a working file: ") + std::strerror(errno)));
     if (::ftruncate(fd, off_t(bytes)) != 0) {
         const int e = errno;
         ::close(fd);
@@ -62,8 +62,8 @@ torch::Tensor mapped_tensor(at::IntArrayRef shape, const fs::path& dir) {
     const int e = errno;
     ::close(fd);  // the mapping keeps the file
     if (p == MAP_FAILED)
-        throw Error(file_error(dir.string(), std::string("cannot map a working file: ") +
-                                                 std::strerror(e)));
+        throw Error(file_error(dir.string(),
+                               std::string("cannot map a working file: ") + std::strerror(e)));
     {
         std::lock_guard<std::mutex> lock(g_mutex);
         g_maps[p] = bytes;
