@@ -106,6 +106,18 @@ void save_stack_radius(const Project& project, const torch::Tensor& radius, cons
             .dump(2));
 }
 
+// [T,3,3] float64 frame → reference homographies. A locked-off camera maps every frame onto the
+// reference exactly: the estimated homographies' sub-pixel noise would only add flicker.
+torch::Tensor homography_stack(const CameraMotion& motion, bool static_camera) {
+    std::vector<torch::Tensor> hs;
+    for (const auto& h : motion.to_reference)
+        hs.push_back(static_camera ? torch::eye(3, torch::kFloat64)
+                                   : torch::tensor(std::vector<double>(h.m.begin(), h.m.end()),
+                                                   torch::kFloat64)
+                                         .view({3, 3}));
+    return torch::stack(hs);
+}
+
 // The focal-stack radius (stack_coc.h) of `d` estimated on its proxy (`small`, the motion
 // prepared there) and scaled up: bilinear, times the scale (its cost falls with the square of
 // the scale twice over: pixels, and the taps of blurs that shrink with them).
@@ -120,25 +132,12 @@ torch::Tensor stack_radius_on_proxy(const FitData& d, const std::vector<Image>& 
     p.static_camera = d.static_camera;
     p.has_subject = d.has_subject;
     const double s = std::sqrt(px.sx * px.sy);
-    p.radius =
-        F::interpolate(d.radius.unsqueeze(1), F::InterpolateFuncOptions()
-                                                  .size(std::vector<int64_t>{px.height, px.width})
-                                                  .mode(torch::kArea))
-            .squeeze(1)
-            .div(s)
-            .contiguous();
     if (d.mask.defined())
         p.mask = F::interpolate(d.mask, F::InterpolateFuncOptions()
                                             .size(std::vector<int64_t>{px.height, px.width})
                                             .mode(torch::kArea))
                      .contiguous();
-    std::vector<torch::Tensor> hs;
-    for (const auto& h : motion.to_reference)
-        hs.push_back(d.static_camera ? torch::eye(3, torch::kFloat64)
-                                     : torch::tensor(std::vector<double>(h.m.begin(), h.m.end()),
-                                                     torch::kFloat64)
-                                           .view({3, 3}));
-    p.to_ref = torch::stack(hs);
+    p.to_ref = homography_stack(motion, d.static_camera);
     const torch::Tensor r = estimate_radius_from_stack(p, so, report);
     torch::Tensor out = d.clip_array({d.frames, d.height, d.width});
     for (int64_t t = 0; t < d.frames; ++t)
@@ -303,15 +302,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             image_to_tensor(radius.empty() ? scale_radius(prep.coc[t], W, H) : radius[t])[0]);
     radius.clear();
     d->static_camera = prep.decisions.static_camera;
-    // A locked-off camera maps every frame onto the reference exactly: the estimated
-    // homographies' sub-pixel noise would only add flicker.
-    std::vector<torch::Tensor> hs;
-    for (const auto& h : scale_motion(prep.motion, px.sx, px.sy).to_reference)
-        hs.push_back(d->static_camera ? torch::eye(3, torch::kFloat64)
-                                      : torch::tensor(std::vector<double>(h.m.begin(), h.m.end()),
-                                                      torch::kFloat64)
-                                            .view({3, 3}));
-    d->to_ref = torch::stack(hs);
+    d->to_ref = homography_stack(scale_motion(prep.motion, px.sx, px.sy), d->static_camera);
     if (!prep.flow.fwd.empty()) {
         d->flow_fwd = d->clip_array({T - 1, 2, H, W});
         d->flow_valid = d->clip_array({T - 1, 1, H, W});

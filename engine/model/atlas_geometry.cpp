@@ -210,21 +210,24 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
     auto ys = torch::arange(height, torch::kFloat32), xs = torch::arange(width, torch::kFloat32);
     auto g = torch::meshgrid({ys, xs}, "ij");
     auto pts = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({height * width})}, 0);
-    torch::Tensor acc, wsum = torch::zeros({1, height, width});
+    torch::Tensor acc, wsum = torch::zeros({1, height, width}), ones, scale;
     auto opts = F::GridSampleFuncOptions()
                     .mode(torch::kBilinear)
                     .padding_mode(torch::kZeros)
                     .align_corners(false);
     for (int64_t t = 0; t < T; ++t) {
         const torch::Tensor s = src(t);
-        const int64_t C = s.size(0), H = s.size(1), W = s.size(2);
-        if (!acc.defined()) acc = torch::zeros({C, height, width});
-        const auto scale = torch::tensor({2.0f / W, 2.0f / H});
+        if (!acc.defined()) {  // every frame has the first one's size
+            const int64_t C = s.size(0), H = s.size(1), W = s.size(2);
+            acc = torch::zeros({C, height, width});
+            ones = torch::ones({1, 1, H, W});
+            scale = torch::tensor({2.0f / W, 2.0f / H});
+        }
         auto inv = torch::inverse(to_atlas[t].to(torch::kFloat64)).to(torch::kFloat32);
         auto p = torch::matmul(inv, pts);
         auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, height, width, 2});
         auto grid = (xy + 0.5) * scale - 1.0;
-        auto inside = F::grid_sample(torch::ones({1, 1, H, W}), grid, opts)[0];
+        auto inside = F::grid_sample(ones, grid, opts)[0];
         auto col = sample_bicubic(s.unsqueeze(0), grid)[0];
         auto w = F::grid_sample(weight(t).unsqueeze(0), grid, opts)[0] * (inside > 0.999);
         acc += col * w;
