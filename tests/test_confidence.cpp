@@ -10,6 +10,7 @@
 #include "io/clip.h"
 #include "io/image_file.h"
 #include "metrics/metrics.h"
+#include "ops/morphology.h"
 #include "test_util.h"
 
 using namespace refocus;
@@ -235,4 +236,24 @@ TEST_CASE(
     CHECK(out > in - 0.5);
     CHECK(worst > -0.5);
     CHECK(k < 0.2);
+}
+
+TEST_CASE("separable max and min filters equal max pooling over the square window") {
+    // Masks are grown and eroded by windows of hundreds of px at 1080p (a subject's reach):
+    // ops/morphology.h does it in two 1-D passes.
+    namespace F = torch::nn::functional;
+    torch::manual_seed(3);
+    const auto x = torch::rand({2, 1, 37, 53});
+    for (int r : {0, 1, 4, 17}) {
+        CAPTURE(r);
+        const auto pooled =
+            r == 0 ? x : F::max_pool2d(x, F::MaxPool2dFuncOptions(2 * r + 1).stride(1).padding(r));
+        CHECK(torch::equal(max_filter(x, r), pooled));
+        const auto eroded =
+            r == 0 ? x
+                   : -F::max_pool2d(-x, F::MaxPool2dFuncOptions(2 * r + 1).stride(1).padding(r));
+        CHECK(torch::equal(min_filter(x, r), eroded));
+    }
+    // A window wider than the map: every pixel takes the map's extreme.
+    CHECK(torch::equal(max_filter(x, 80)[0], x[0].amax({1, 2}, true).expand({1, 37, 53})));
 }

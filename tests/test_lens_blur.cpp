@@ -10,6 +10,7 @@
 #include <string>
 
 #include "ops/lens_blur.h"
+#include "ops/uniform_blur.h"
 #include "util/error.h"
 
 using refocus::BlurKernel;
@@ -416,4 +417,42 @@ TEST_CASE("a circle of confusion becomes the kernel radius that spreads light as
     CHECK(kernel_radius_for_coc(0.0) == 0.0);
     // The disk's soft edge makes it wider than the disk of its radius.
     CHECK(kernel_radius_for_coc(7.0) == doctest::Approx(6.36).epsilon(0.01));
+}
+
+TEST_CASE("uniform radii by FFT match the direct blur away from the border, all kernels") {
+    // The focal-stack radius estimate blurs at every radius of its grid this way
+    // (ops/uniform_blur.h): its reference path is lens_blur itself.
+    torch::manual_seed(7);
+    const int64_t H = 61, W = 83;
+    const auto img = torch::rand({3, H, W});
+    const std::vector<double> radii{0.0, 0.2, 0.6, 1.5, 4.0, 9.5};
+    for (BlurKernel k : kAllKernels) {
+        CAPTURE(name(k));
+        const LensBlurParams p = params_for(k);
+        const refocus::UniformBlurBank bank(H, W, radii, p);
+        const auto spec = bank.spectrum(img);
+        for (size_t i = 0; i < radii.size(); ++i) {
+            CAPTURE(radii[i]);
+            const auto direct = lens_blur(img, torch::full({H, W}, float(radii[i])), p);
+            const auto fft = bank.blur(spec, i);
+            REQUIRE(fft.sizes() == direct.sizes());
+            // A source within R_s of the border has its spread renormalised (lens_blur.h), and
+            // it reaches R_s further in: the two agree beyond twice the support.
+            const int64_t m = 2 * (int64_t(std::ceil(refocus::lens_blur_support(radii[i], p))) + 1);
+            if (2 * m < H) {
+                const auto in = [&](const torch::Tensor& x) {
+                    return x.narrow(1, m, H - 2 * m).narrow(2, m, W - 2 * m);
+                };
+                CHECK((in(fft)-in(direct)).abs().max().item<double>() < 2e-5);
+            }
+            // Near the border both keep a flat image flat and stay within the image's range.
+            const auto flat = bank.blur(bank.spectrum(torch::full({1, H, W}, 0.3f)), i);
+            CHECK((flat - 0.3).abs().max().item<double>() < 2e-5);
+            CHECK(fft.min().item<double>() > -1e-4);
+            CHECK(fft.max().item<double>() < 1.0 + 1e-4);
+        }
+    }
+    CHECK_THROWS_AS(refocus::UniformBlurBank(H, W, {-1.0}, LensBlurParams{}), refocus::Error);
+    const refocus::UniformBlurBank bank(H, W, {2.0}, LensBlurParams{});
+    CHECK_THROWS_AS(bank.spectrum(torch::zeros({3, H + 1, W})), refocus::Error);
 }

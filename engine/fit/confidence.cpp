@@ -7,6 +7,8 @@
 #include <cmath>
 #include <vector>
 
+#include "ops/morphology.h"
+
 namespace refocus {
 
 namespace F = torch::nn::functional;
@@ -16,10 +18,6 @@ namespace {
 torch::Tensor smoothstep01(const torch::Tensor& x) {
     auto c = x.clamp(0, 1);
     return c * c * (3 - 2 * c);
-}
-
-torch::Tensor max_filter(const torch::Tensor& m, int radius) {
-    return F::max_pool2d(m, F::MaxPool2dFuncOptions(2 * radius + 1).stride(1).padding(radius));
 }
 
 // A box mean over (2·radius + 1)² px, edges replicated: a map's seam made a ramp.

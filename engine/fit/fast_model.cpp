@@ -73,6 +73,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     const auto sharpness =
         d.per_frame([&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); });
     m_two_layers = d.has_subject && d.mask.defined();
+    debug_memory("fast model: weights");
     torch::Tensor bg_weight = sharpness;
     // Where each layer is seen: the mask's complement, or everywhere with one layer.
     const auto bg_region = d.per_frame(
@@ -160,7 +161,9 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                 0.3 * m_bg.scale)
             m_bg.to_atlas = before;
     }
+    debug_memory("fast model: aligned");
     init_levels(m_bg, fuse(m_bg, bg_weight));
+    debug_memory("fast model: background fused");
     if (m_opts.deblur_path) {
         auto line =
             make_deblur_path(m_bg, d.layer_radius(false), bg_weight, bg_region, "background");

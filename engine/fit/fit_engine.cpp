@@ -63,7 +63,9 @@ void FitEngine::build_model() {
         split_radius_by_layer(*m_data);
     else
         m_data->radius_fg = m_data->radius_bg = torch::Tensor();
+    debug_memory("engine: radius split by layer");
     m_model = make_model(m_opts.preset, *m_data, m_opts.seed, m_opts.settings);
+    debug_memory("engine: model made");
     if (atlas && debug_enabled("init-atlas")) {
         // Start from given atlases (<dir>/atlas_bg.exr, and atlas_fg.exr where the file is
         // there), e.g. the ground truth splatted through a fitted project's UV, to see where
@@ -78,16 +80,6 @@ void FitEngine::build_model() {
         m_model->notes.push_back("fit: " + std::to_string(m_batch) + " frames a step (" +
                                  m_model->preferred_batch_reason() + ")");
     m_pad = m_model->max_pad();
-    if (m_pad > 0) {
-        auto padded = [&](const torch::Tensor& r) {
-            return F::pad(r.unsqueeze(1),
-                          F::PadFuncOptions({m_pad, m_pad, m_pad, m_pad}).mode(torch::kReplicate))
-                .squeeze(1);
-        };
-        m_radius_pad = padded(m_data->radius);
-        m_radius_fg_pad = padded(m_data->layer_radius(true));
-        m_radius_bg_pad = padded(m_data->layer_radius(false));
-    }
     // A crop is blurred with the margin the model renders around it (FitModel::render_window),
     // as a whole frame is: a model that renders none beyond the frame (paper) takes whole
     // frames, unless nothing is blurred (docs/method.md, Crops).
@@ -159,17 +151,38 @@ std::vector<int64_t> FitEngine::next_batch() {
     return b;
 }
 
+namespace {
+
+// Frame t of [T,H,W] maps over rows y0..y0+h and columns x0..x0+w of the frame, its border
+// repeated beyond it: what a replicate-padded map holds there, without a padded copy of the
+// clip's maps (util/mapped.h: those stay in their file).
+torch::Tensor map_window(const torch::Tensor& maps, int64_t t, int64_t y0, int64_t x0, int64_t h,
+                         int64_t w) {
+    const int64_t H = maps.size(1), W = maps.size(2);
+    const auto frame = maps[t];
+    if (y0 >= 0 && x0 >= 0 && y0 + h <= H && x0 + w <= W)
+        return frame.narrow(0, y0, h).narrow(1, x0, w);
+    auto ys = torch::arange(y0, y0 + h, torch::kLong).clamp(0, H - 1);
+    auto xs = torch::arange(x0, x0 + w, torch::kLong).clamp(0, W - 1);
+    return frame.index_select(0, ys).index_select(1, xs);
+}
+
+}  // namespace
+
 torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& frames) {
     // Layers rendered with a margin (render_padded) are blurred with the radius maps padded
     // alike and cropped back to the frame.
     const int64_t pad = (L.sharp.size(3) - m_data->width) / 2;
     if (pad != 0 && pad != m_pad) throw Error("reblur: layers padded by an unexpected margin");
     std::vector<torch::Tensor> out;
+    const int64_t H = m_data->height, W = m_data->width;
     for (size_t b = 0; b < frames.size(); ++b) {
         const int64_t t = frames[b];
-        out.push_back(reblur_frame(L, b, t, pad ? m_radius_pad[t] : m_data->radius[t],
-                                   pad ? m_radius_fg_pad[t] : m_data->layer_radius(true)[t],
-                                   pad ? m_radius_bg_pad[t] : m_data->layer_radius(false)[t]));
+        auto map = [&](const torch::Tensor& maps) {
+            return map_window(maps, t, -pad, -pad, H + 2 * pad, W + 2 * pad);
+        };
+        out.push_back(reblur_frame(L, b, t, map(m_data->radius), map(m_data->layer_radius(true)),
+                                   map(m_data->layer_radius(false))));
     }
     auto rb = torch::stack(out);
     return pad ? rb.narrow(2, pad, m_data->height).narrow(3, pad, m_data->width) : rb;
@@ -206,16 +219,15 @@ Crops FitEngine::step_crops(const std::vector<int64_t>& frames) const {
 
 torch::Tensor FitEngine::reblur_crops(const Layers& L, const std::vector<int64_t>& frames,
                                       const Crops& c, const Windows& win) const {
-    // The radius maps' windows: in the padded maps frame pixel x sits at x + m_pad.
     std::vector<torch::Tensor> out;
     for (size_t b = 0; b < frames.size(); ++b) {
-        const int64_t t = frames[b], wy = win.y0[b] + m_pad, wx = win.x0[b] + m_pad;
-        auto window = [&](const torch::Tensor& padded, const torch::Tensor& plain) {
-            return (m_pad > 0 ? padded : plain)[t].narrow(0, wy, win.h).narrow(1, wx, win.w);
+        const int64_t t = frames[b];
+        auto window = [&](const torch::Tensor& maps) {
+            return map_window(maps, t, win.y0[b], win.x0[b], win.h, win.w);
         };
-        auto blurred = reblur_frame(L, b, t, window(m_radius_pad, m_data->radius),
-                                    window(m_radius_fg_pad, m_data->layer_radius(true)),
-                                    window(m_radius_bg_pad, m_data->layer_radius(false)));
+        auto blurred =
+            reblur_frame(L, b, t, window(m_data->radius), window(m_data->layer_radius(true)),
+                         window(m_data->layer_radius(false)));
         out.push_back(
             blurred.narrow(1, c.y[b] - win.y0[b], c.h).narrow(2, c.x[b] - win.x0[b], c.w));
     }
@@ -393,6 +405,7 @@ void FitEngine::step() {
         double mse = (rb.detach() - target).pow(2).mean().item<double>();
         psnr_v = 10 * std::log10(1.0 / std::max(mse, 1e-12));
     }
+    if (m_step < 2) debug_memory(m_step == 0 ? "engine: first step" : "engine: second step");
     ++m_step;
     m_elapsed += std::chrono::duration<double>(Clock::now() - t0).count();
 

@@ -193,8 +193,6 @@ class FitEngine {
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;  // whether steps take crops (FitOptions::crop_px, and the model
                            // renders the blur's margin)
-    // [T,H+2pad,W+2pad] radius, edges replicated: the visible surface's, the subject's, the wall's
-    torch::Tensor m_radius_pad, m_radius_fg_pad, m_radius_bg_pad;
     std::mt19937_64 m_rng;
     std::vector<int64_t> m_perm;
     size_t m_perm_pos = 0;

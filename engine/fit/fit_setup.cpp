@@ -18,6 +18,7 @@
 #include "prepare/prepare.h"
 #include "prepare/proxy.h"
 #include "util/mapped.h"
+#include "util/debug.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -67,7 +68,7 @@ std::string stack_key(const Project& project, const FitData& d, const FitSetupOp
     // The radius is measured in the kernel's units: a pillbox's differs from the disk's.
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
            (d.static_camera ? "/static" : "/moving") +
-           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v12" + settings_key;
+           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v13" + settings_key;
 }
 
 fs::path stack_frame_path(const Project& project, int t) {
@@ -238,6 +239,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         else
             frames.push_back(std::move(f));
     }
+    debug_memory("setup: frames read");
     if (px.active())
         log.info("prepare: on " + std::to_string(px.width) + "x" + std::to_string(px.height) +
                  " proxies (prepare.proxy_width), scaled up to " + std::to_string(project.width) +
@@ -276,6 +278,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             for (float& v : m.pixels) v = std::round(std::clamp(v, 0.0f, 1.0f) * 255.0f) / 255.0f;
     }
     std::vector<Image>().swap(frames);  // prepared: the fit reads d->input
+    debug_memory("setup: prepared");
     log.stage("radius maps", 0.23, 0.92);
     d->blur = fit_kernel_params(opts.kernel);
     log.info("kernel: " + opts.kernel +
@@ -301,6 +304,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         d->radius[t].copy_(
             image_to_tensor(radius.empty() ? scale_radius(prep.coc[t], W, H) : radius[t])[0]);
     radius.clear();
+    std::vector<Image>().swap(prep.coc);  // each is at full size in d->radius now
     d->static_camera = prep.decisions.static_camera;
     d->to_ref = homography_stack(scale_motion(prep.motion, px.sx, px.sy), d->static_camera);
     if (!prep.flow.fwd.empty()) {
@@ -311,6 +315,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             d->flow_valid[t].copy_(image_to_tensor(scale_binary(prep.flow.fwd_valid[t], W, H)));
         }
     }
+    prep.flow = ClipFlow();  // at full size in d->flow_*: a long clip's flow is GBs
+    debug_memory("setup: radius and flow scaled up");
     d->has_subject = prep.decisions.has_subject && !prep.masks.empty();
     if (d->has_subject && opts.mask_path.empty()) {
         // Automatic masks threshold the flow residual, and a focus change alone makes edges
@@ -362,6 +368,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             log.info(clean_subject_masks(*d));
         }
     }
+    std::vector<Image>().swap(prep.masks);
     if (opts.coc_path.empty()) {
         if (d->frames >= 3 && !opts.single_image_coc) {
             const std::string key = stack_key(project, *d, opts);
@@ -392,6 +399,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             log.info("radius: estimated per frame (edge reblur ratio, guided filter)");
         }
     }
+    std::vector<Image>().swap(small);  // the proxies served the preparation and the radius
+    debug_memory("setup: radius estimated");
     d->radius_given = !opts.coc_path.empty();
     log.info(choose_atlas_scale(*d, d->radius_given, opts.atlas_scale));
     log.info(std::string("fit: ") +

@@ -187,6 +187,8 @@ const std::vector<Field<PerframeOptions>>& perframe_fields() {
 const std::vector<Field<StackCocOptions>>& radius_fields() {
     using O = StackCocOptions;
     static const std::vector<Field<O>> f = {
+        {"radius.direct_blur", &O::direct_blur, 0, 1,
+         "the reference path: blur at each radius directly, not by FFT (slow at large radii)"},
         {"radius.absolute", &O::absolute, 0, 1,
          "add the composite's own blur, measured at its edges, to the stack's relative radius"},
         {"radius.floor_max", &O::floor_max, 0, 100,

@@ -4,6 +4,7 @@
 #include <torch/torch.h>
 
 #include "model/fit_model.h"
+#include "ops/morphology.h"
 #include "util/debug.h"
 
 #include <opencv2/imgproc.hpp>
@@ -47,21 +48,26 @@ AtlasBox mapped_frames_box(const torch::Tensor& to_ref_in, int64_t H, int64_t W)
 
 void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double>& vy,
                    std::vector<double>* scale_out) {
-    namespace F = torch::nn::functional;
     const torch::Tensor &flow_fwd = d.flow_fwd, &flow_valid = d.flow_valid;
     auto m = d.mask.squeeze(1);  // [T,H,W]
     const int64_t T = m.size(0);
     auto ys = torch::arange(m.size(1), torch::kFloat32),
          xs = torch::arange(m.size(2), torch::kFloat32);
     auto grid = torch::meshgrid({ys, xs}, "ij");
-    auto mass = m.sum({1, 2}).clamp_min(1e-6);
-    auto cx = (m * grid[1]).sum({1, 2}) / mass, cy = (m * grid[0]).sum({1, 2}) / mass;
+    // Frame by frame: a long clip's masks are a file mapping (util/mapped.h).
+    std::vector<double> mass(T), cx(T), cy(T);
+    for (int64_t t = 0; t < T; ++t) {
+        const auto mt = m[t];
+        mass[t] = std::max(mt.sum().item<double>(), 1e-6);
+        cx[t] = (mt * grid[1]).sum().item<double>() / mass[t];
+        cy[t] = (mt * grid[0]).sum().item<double>() / mass[t];
+    }
     std::vector<double> rx(T), ry(T);
     int64_t last = -1;
     for (int64_t t = 0; t < T; ++t) {
-        if (mass[t].item<double>() > 4.0) last = t;
-        rx[t] = cx[last < 0 ? t : last].item<double>();
-        ry[t] = cy[last < 0 ? t : last].item<double>();
+        if (mass[t] > 4.0) last = t;
+        rx[t] = cx[last < 0 ? t : last];
+        ry[t] = cy[last < 0 ? t : last];
     }
     vx.assign(T, 0.0);
     vy.assign(T, 0.0);
@@ -85,9 +91,10 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
     // centroid wanders where the flow chain does not. Not ECC between pairs: the sharp wall
     // showing through a blurred subject's edge pulls it toward the wall's motion
     // (docs/method.md, Preparation).
-    auto core = (-F::max_pool2d(-(m > 0.5).to(torch::kFloat32).unsqueeze(1),
-                                F::MaxPool2dFuncOptions(9).stride(1).padding(4)))
-                    .squeeze(1) > 0.5;
+    auto core = [&](int64_t t) {
+        return min_filter((m[t] > 0.5).to(torch::kFloat32).view({1, 1, m.size(1), m.size(2)}), 4)
+                   .view({m.size(1), m.size(2)}) > 0.5;
+    };
     std::vector<double> sx(T, 0.0), sy(T, 0.0);
     // With the scale (a subject walking toward or away from the camera): frame t's point p is
     // at v_{t+1} + s_t (p − v_t) in frame t + 1, s_t the least-squares expansion of the flow
@@ -95,7 +102,7 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
     std::vector<double> zx(T), zy(T), zs(T, 1.0);
     zx[0] = rx[0], zy[0] = ry[0];
     for (int64_t t = 0; t + 1 < T; ++t) {
-        auto sel = core[t];
+        auto sel = core(t);
         if (flow_valid.defined()) sel = sel & (flow_valid[t][0] > 0.5);
         double dx, dy, st = 1.0, ccx = rx[t], ccy = ry[t], zdx, zdy;
         if (sel.sum().item<int64_t>() >= 32) {

@@ -11,6 +11,8 @@
 #include "radius/spectral_blur.h"
 #include "io/tensor_image.h"
 #include "ops/lens_blur.h"
+#include "ops/morphology.h"
+#include "ops/uniform_blur.h"
 #include "prepare/coc.h"
 
 namespace refocus {
@@ -44,7 +46,7 @@ torch::Tensor warp(const torch::Tensor& src, const torch::Tensor& m, int64_t H, 
 
 // Where a [N,1,H,W] 0/1 map is 1 over the whole (2r+1)² window around a pixel.
 torch::Tensor erode(const torch::Tensor& valid, int r) {
-    return -F::max_pool2d(-valid, F::MaxPool2dFuncOptions(2 * r + 1).stride(1).padding(r));
+    return min_filter(valid, r);
 }
 
 // Push-pull fill: v [N,1,H,W] kept where w (0/1) is 1, the rest filled from the nearest kept
@@ -232,9 +234,8 @@ torch::Tensor floor_surface(FloorBins& b, int min_local, double rmax, int reach_
     // short of the canvas border, and those rows and columns would otherwise keep no floor (a
     // frame's outer rows reading a fraction of their blur).
     const int rim = o.contrast_window + 1 + o.window;
-    return r0 * F::max_pool2d((own > 0.5).to(torch::kFloat32).view({1, 1, Hc, Wc}),
-                              F::MaxPool2dFuncOptions(2 * rim + 1).stride(1).padding(rim))
-                    .view({Hc, Wc});
+    return r0 *
+           max_filter((own > 0.5).to(torch::kFloat32).view({1, 1, Hc, Wc}), rim).view({Hc, Wc});
 }
 
 // The composite's absolute blur r0 [Hc,Wc] (edge_blur.h). Each frame's isolated edges are
@@ -401,10 +402,10 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
 // 3. Frame t's radius relative to the composite: the blur of the composite that matches the
 //    frame best, locally; 4. spread from where the match is measured into flat regions. [H,W]
 torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
-                              const torch::Tensor& region, int64_t t, const StackCocOptions& o) {
+                              const torch::Tensor& region, int64_t t, const UniformBlurBank& bank,
+                              const StackCocOptions& o) {
     const int64_t H = d.height, W = d.width;
-    std::vector<double> radii;
-    for (double r = 0; r <= o.rmax + 1e-9; r += o.rstep) radii.push_back(r);
+    const std::vector<double>& radii = bank.radii();
     const int64_t K = radii.size();
     const LensBlurParams& bp = d.blur;
     auto aif_t = warp(c.aif.unsqueeze(0), c.to_canvas[t], H, W)[0].contiguous();
@@ -412,8 +413,12 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
     auto seen = erode(warp(c.covered, c.to_canvas[t], H, W, true).gt(0.999).to(torch::kFloat32),
                       o.window)[0][0];
     std::vector<torch::Tensor> costs;
-    for (double r : radii) {
-        auto b = r < bp.min_radius ? aif_t : lens_blur(aif_t, torch::full({H, W}, float(r)), bp);
+    const auto spectrum = o.direct_blur ? torch::Tensor() : bank.spectrum(aif_t);
+    for (size_t k = 0; k < radii.size(); ++k) {
+        const double r = radii[k];
+        auto b = r < bp.min_radius ? aif_t
+                 : o.direct_blur   ? lens_blur(aif_t, torch::full({H, W}, float(r)), bp)
+                                   : bank.blur(spectrum, k);
         costs.push_back((b - d.input[t]).pow(2).sum(0, true));
     }
     auto cost = box(torch::stack(costs), o.window).squeeze(1);  // [K,H,W]
@@ -564,9 +569,13 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in,
                            const torch::Tensor& region, const StackCocOptions& o,
                            std::string* report, double* fixed_share = nullptr) {
     const LayerComposite c = layer_composite(d, to_ref_in, region, o);
+    std::vector<double> radii;
+    for (double r = 0; r <= o.rmax + 1e-9; r += o.rstep) radii.push_back(r);
+    const UniformBlurBank bank(d.height, d.width, radii, d.blur);
     std::vector<torch::Tensor> out;
-    for (int64_t t = 0; t < d.frames; ++t) out.push_back(relative_radius(d, c, region, t, o));
+    for (int64_t t = 0; t < d.frames; ++t) out.push_back(relative_radius(d, c, region, t, bank, o));
     if (o.absolute) add_absolute_floor(d, c, region, out, o, report, fixed_share);
+
     return torch::stack(out).contiguous();
 }
 
@@ -601,16 +610,14 @@ void split_radius_by_layer(FitData& d, int margin) {
             auto fg_kept = keep_fg * like_subject;
             keep_fg = fg_kept.sum().item<double>() >= 1 ? fg_kept : core;
             const int reach = std::max(margin, int(std::sqrt(area / M_PI)));
-            auto near =
-                F::max_pool2d(fg, F::MaxPool2dFuncOptions(2 * reach + 1).stride(1).padding(reach));
+            auto near = max_filter(fg, reach);
             auto bg_kept = keep_bg * (1.0 - near * like_subject);
             if (bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
             // Far from the mask the subject's layer is transparent and its radius only costs
             // time (the lens blur scatters every source pixel over its radius): there it takes
             // the visible surface's (docs/method.md, Layered reblur).
             const int far = reach + int(std::ceil(r_core)) + 2;
-            fg_region =
-                F::max_pool2d(fg, F::MaxPool2dFuncOptions(2 * far + 1).stride(1).padding(far));
+            fg_region = max_filter(fg, far);
         }
         // A frame without a sure pixel of a layer keeps the visible surface's map for it.
         auto one = [&](const torch::Tensor& sure) {

@@ -27,7 +27,11 @@ namespace refocus {
 struct StackCocOptions {
     double rmax = 14.0;  // largest radius tested (px)
     double rstep = 0.5;  // radius grid
-    int window = 4;      // half-size of the matching window (px)
+    // The reference: each radius of the grid blurred directly (lens_blur), not by FFT
+    // (ops/uniform_blur.h, the same kernel; it differs only within the kernel's reach of the
+    // frame's border). Its cost grows with r².
+    bool direct_blur = false;
+    int window = 4;  // half-size of the matching window (px)
     int contrast_window = 3;
     double min_confidence = 1e-4;  // cost spread (max − min) below this: not measured here
     int spread_px = 6;  // window of the confidence-weighted spread (then H/10 for the rest)

@@ -406,6 +406,10 @@ SynthFrame SynthClip::render(int t) const {
     ro.crop_x = ro.crop_y = m_margin;
     ro.crop_w = m_opts.width;
     ro.crop_h = m_opts.height;
+    // Aperture samples per px² of the 320x180 reference, not of this clip: a larger clip is the
+    // same scene on a finer grid (textures and blur scale with it), so samples one reference px
+    // apart serve it as they serve the reference. Per px² of its own, 1080p would take hours.
+    ro.samples_per_px2 = 1.0 / std::max(1.0, m_scale * m_scale);
     auto blurred = render_aperture(L, lens, ro);
     f.input = std::move(blurred.rgb);
     f.samples = blurred.samples;

@@ -1,5 +1,8 @@
 #include "util/debug.h"
 
+#include <chrono>
+#include <cstdio>
+#include <fstream>
 #include <map>
 
 #include "util/error.h"
@@ -19,6 +22,7 @@ const std::vector<std::pair<std::string, std::string>>& debug_names() {
         {"align", "the fast preset's ECC alignment of each frame at initialisation, to stderr"},
         {"masks", "which subject masks the track drops or fills, to stderr"},
         {"init-atlas=DIR", "start the fit from DIR/atlas_bg.exr (and atlas_fg.exr)"},
+        {"memory", "resident memory (anonymous, and mapped clip arrays) at each stage, to stderr"},
     };
     return names;
 }
@@ -58,6 +62,30 @@ bool debug_enabled(const std::string& what) {
 std::string debug_value(const std::string& what) {
     auto it = active().find(what);
     return it == active().end() ? std::string() : it->second;
+}
+
+void debug_memory(const char* stage) {
+    if (!debug_enabled("memory")) return;
+    std::ifstream f("/proc/self/status");
+    std::string line, anon = "?", file = "?", peak = "?";
+    auto value = [](const std::string& l) {  // "RssAnon:\t  123456 kB" -> "123456"
+        const size_t a = l.find_first_of("0123456789");
+        return a == std::string::npos ? std::string("?") : l.substr(a, l.find(' ', a) - a);
+    };
+    while (std::getline(f, line)) {
+        if (line.rfind("RssAnon:", 0) == 0) anon = value(line);
+        if (line.rfind("RssFile:", 0) == 0) file = value(line);
+        if (line.rfind("VmHWM:", 0) == 0) peak = value(line);
+    }
+    auto mb = [](const std::string& kb) {
+        return kb == "?" ? kb : std::to_string(std::stoll(kb) / 1024);
+    };
+    static const auto start = std::chrono::steady_clock::now();  // the first stage's time
+    const double s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::fprintf(stderr,
+                 "memory: %-36s %7.1f s: anonymous %6s MB, file-backed %6s MB, peak %6s MB\n",
+                 stage, s, mb(anon).c_str(), mb(file).c_str(), mb(peak).c_str());
 }
 
 }  // namespace refocus

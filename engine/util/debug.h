@@ -12,6 +12,8 @@ void clear_debug();
 bool debug_enabled(const std::string& what);
 // The value given as what=value ("" when none).
 std::string debug_value(const std::string& what);
+// With `--debug memory`: one line on stderr with the process's resident memory at `stage`.
+void debug_memory(const char* stage);
 // The names set_debug accepts, with one line of help each.
 const std::vector<std::pair<std::string, std::string>>& debug_names();
 
