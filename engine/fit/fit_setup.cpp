@@ -2,6 +2,8 @@
 
 #include <torch/torch.h>
 
+#include <malloc.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -208,6 +210,18 @@ LensBlurParams fit_kernel_params(const std::string& kernel) {
     return p;
 }
 
+namespace {
+
+// Freed proxies and preparation results are many frame-sized blocks in malloc's heap, which it
+// keeps resident unless asked to return them: a long clip's are GBs.
+void release_freed_memory() {
+#ifdef __GLIBC__
+    malloc_trim(0);
+#endif
+}
+
+}  // namespace
+
 std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOptions& opts,
                                         PrepareLog& log) {
     // Progress: the steps' shares are the sample clip's timings (320x180, 30 frames, radius
@@ -369,6 +383,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         }
     }
     std::vector<Image>().swap(prep.masks);
+    release_freed_memory();  // before the focal stack's working set
     if (opts.coc_path.empty()) {
         if (d->frames >= 3 && !opts.single_image_coc) {
             const std::string key = stack_key(project, *d, opts);
@@ -400,6 +415,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         }
     }
     std::vector<Image>().swap(small);  // the proxies served the preparation and the radius
+    release_freed_memory();
     debug_memory("setup: radius estimated");
     d->radius_given = !opts.coc_path.empty();
     log.info(choose_atlas_scale(*d, d->radius_given, opts.atlas_scale));

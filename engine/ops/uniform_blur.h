@@ -17,7 +17,7 @@
 namespace refocus {
 
 class UniformBlurBank {
-public:
+  public:
     // Frames of H x W, blurred at each of `radii` (px, ≥ 0) with `params`' kernel.
     UniformBlurBank(int64_t height, int64_t width, std::vector<double> radii,
                     const LensBlurParams& params);
@@ -29,7 +29,7 @@ public:
 
     const std::vector<double>& radii() const { return m_radii; }
 
-private:
+  private:
     int64_t m_h = 0, m_w = 0, m_hp = 0, m_wp = 0;
     std::vector<double> m_radii;
     std::vector<torch::Tensor> m_kernel;    // [Hp, Wp/2+1] complex: the kernel's spectrum

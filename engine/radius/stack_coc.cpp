@@ -363,39 +363,64 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
     const int64_t Hc = c.Hc, Wc = c.Wc;
     c.to_canvas = torch::matmul(translation(-box_ref.origin_x, -box_ref.origin_y).unsqueeze(0),
                                 to_ref_in.to(torch::kFloat64));
+    // Two passes over the frames, one frame in memory at a time (a long clip's views would be
+    // GBs on the canvas): the sharpest contrast each canvas pixel has in any view, then each
+    // view's weight against it, accumulated.
     auto ones = torch::ones({1, 1, H, W});
-    std::vector<torch::Tensor> reg, reg_region;
-    for (int64_t t = 0; t < T; ++t) {
+    const auto lap_kernel =
+        torch::tensor({0.f, 1.f, 0.f, 1.f, -4.f, 1.f, 0.f, 1.f, 0.f}).view({1, 1, 3, 3});
+    struct View {
+        torch::Tensor reg, valid, contrast, own;  // [1,3,Hc,Wc], [1,1,Hc,Wc] x3
+    };
+    auto view = [&](int64_t t, bool keep_valid) {
+        View v;
         auto inv = torch::inverse(c.to_canvas[t]);
-        reg.push_back(warp(d.input[t].unsqueeze(0), inv, Hc, Wc)[0]);
-        c.reg_valid.push_back((warp(ones, inv, Hc, Wc, true)[0] > 0.999).to(torch::kFloat32));
+        v.reg = warp(d.input[t].unsqueeze(0), inv, Hc, Wc);
+        auto reg_valid = (warp(ones, inv, Hc, Wc, true)[0] > 0.999).to(torch::kFloat32);
+        if (keep_valid) c.reg_valid.push_back(reg_valid);
+        auto luma =
+            (0.299 * v.reg.select(1, 0) + 0.587 * v.reg.select(1, 1) + 0.114 * v.reg.select(1, 2))
+                .unsqueeze(1);
+        auto lap = F::conv2d(F::pad(luma, F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kReplicate)),
+                             lap_kernel);
+        v.valid = erode(reg_valid.unsqueeze(0), o.contrast_window + 1);
+        v.contrast = box(lap.pow(2), o.contrast_window) * v.valid;
         if (region.defined())
-            reg_region.push_back(warp(region[t].unsqueeze(0), inv, Hc, Wc, true)[0].clamp(0, 1));
+            v.own = (warp(region[t].unsqueeze(0), inv, Hc, Wc, true).clamp(0, 1) > 0.5)
+                        .to(torch::kFloat32);
+        return v;
+    };
+    auto cmax = torch::zeros({1, 1, Hc, Wc}), comax = torch::zeros({1, 1, Hc, Wc});
+    for (int64_t t = 0; t < T; ++t) {
+        const View v = view(t, true);
+        cmax = torch::maximum(cmax, v.contrast);
+        if (region.defined()) comax = torch::maximum(comax, v.contrast * v.own);
     }
-    auto stack = torch::stack(reg);  // [T,3,Hc,Wc]
-    auto luma =
-        (0.299 * stack.select(1, 0) + 0.587 * stack.select(1, 1) + 0.114 * stack.select(1, 2))
-            .unsqueeze(1);
-    auto lap =
-        F::conv2d(F::pad(luma, F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kReplicate)),
-                  torch::tensor({0.f, 1.f, 0.f, 1.f, -4.f, 1.f, 0.f, 1.f, 0.f}).view({1, 1, 3, 3}));
-    auto valid = erode(torch::stack(c.reg_valid), o.contrast_window + 1);  // [T,1,Hc,Wc]
-    auto contrast = box(lap.pow(2), o.contrast_window) * valid;
-    auto w = (contrast / contrast.amax({0}, true).clamp_min(1e-12)).pow(8) * valid;
-    c.own_seen = (w.sum(0)[0] > 1e-6).to(torch::kFloat32);
+    auto wsum = torch::zeros({1, 1, Hc, Wc}), acc = torch::zeros({1, 3, Hc, Wc});
+    auto wsum_o = torch::zeros({1, 1, Hc, Wc}), acc_o = torch::zeros({1, 3, Hc, Wc});
+    for (int64_t t = 0; t < T; ++t) {
+        const View v = view(t, false);
+        auto w = (v.contrast / cmax.clamp_min(1e-12)).pow(8) * v.valid;
+        wsum += w;
+        acc += v.reg * w;
+        if (region.defined()) {
+            // The layer's own views first, weighed against the sharpest of them (against every
+            // view's sharpest, a wall point seen blurred after a sharp subject stood over it
+            // would count as never seen and keep no floor); where the layer is never seen,
+            // every view.
+            auto wo = (v.contrast * v.own / comax.clamp_min(1e-12)).pow(8) * v.valid * v.own;
+            wsum_o += wo;
+            acc_o += v.reg * wo;
+        }
+    }
+    c.own_seen = ((region.defined() ? wsum_o : wsum)[0][0] > 1e-6).to(torch::kFloat32);
     if (region.defined()) {
-        // The layer's own views first, weighed against the sharpest of them (against every
-        // view's sharpest, a wall point seen blurred after a sharp subject stood over it would
-        // count as never seen and keep no floor); where the layer is never seen, every view.
-        auto own = (torch::stack(reg_region) > 0.5).to(torch::kFloat32);  // [T,1,Hc,Wc]
-        auto co = contrast * own;
-        auto wo = (co / co.amax({0}, true).clamp_min(1e-12)).pow(8) * valid * own;
-        w = torch::where(wo.sum(0, true) > 1e-6, wo, w);
-        c.own_seen = (wo.sum(0)[0] > 1e-6).to(torch::kFloat32);
+        auto use_own = wsum_o > 1e-6;
+        wsum = torch::where(use_own, wsum_o, wsum);
+        acc = torch::where(use_own, acc_o, acc);
     }
-    auto wsum = w.sum(0);                                         // [1,Hc,Wc]
-    c.aif = (stack * w).sum(0) / wsum.clamp_min(1e-12);           // [3,Hc,Wc]
-    c.covered = (wsum > 1e-12).to(torch::kFloat32).unsqueeze(0);  // [1,1,Hc,Wc]
+    c.aif = (acc / wsum.clamp_min(1e-12))[0];        // [3,Hc,Wc]
+    c.covered = (wsum > 1e-12).to(torch::kFloat32);  // [1,1,Hc,Wc]
     return c;
 }
 
