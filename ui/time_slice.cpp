@@ -70,7 +70,6 @@ void post_input_slice(StudioContext& ctx, std::shared_ptr<TimeSliceState::Job> j
 }  // namespace
 
 void rebuild_time_slice(TimeSliceState& s, StudioContext& ctx, bool output, bool refocus) {
-    const int w = ctx.source->width(), n = ctx.source->frames();
     if (s.row < 0 || s.row >= ctx.source->height()) s.row = ctx.source->height() / 2;
     const int64_t edit_version = ctx.edits_version();
     std::string key =

@@ -292,6 +292,10 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             for (float& v : m.pixels) v = std::round(std::clamp(v, 0.0f, 1.0f) * 255.0f) / 255.0f;
     }
     std::vector<Image>().swap(frames);  // prepared: the fit reads d->input
+    // The fit reads the forward flow only (the backward one served its consistency check).
+    std::vector<Image>().swap(prep.flow.bwd);
+    std::vector<Image>().swap(prep.flow.bwd_valid);
+    release_freed_memory();
     debug_memory("setup: prepared");
     log.stage("radius maps", 0.23, 0.92);
     d->blur = fit_kernel_params(opts.kernel);
