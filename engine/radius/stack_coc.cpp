@@ -590,17 +590,15 @@ void add_absolute_floor(const FitData& d, const LayerComposite& c, const torch::
 // Only the layer's own pixels enter its all-in-focus composite and spread into flat areas, so a
 // subject passing over a wall pixel does not become that pixel's "sharpest view", and the wall
 // does not lend the subject its radius.
+// `bank` holds the radius grid's kernels (both layers share it).
 torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in,
-                           const torch::Tensor& region, const StackCocOptions& o,
-                           std::string* report, double* fixed_share = nullptr) {
+                           const torch::Tensor& region, const UniformBlurBank& bank,
+                           const StackCocOptions& o, std::string* report,
+                           double* fixed_share = nullptr) {
     const LayerComposite c = layer_composite(d, to_ref_in, region, o);
-    std::vector<double> radii;
-    for (double r = 0; r <= o.rmax + 1e-9; r += o.rstep) radii.push_back(r);
-    const UniformBlurBank bank(d.height, d.width, radii, d.blur);
     std::vector<torch::Tensor> out;
     for (int64_t t = 0; t < d.frames; ++t) out.push_back(relative_radius(d, c, region, t, bank, o));
     if (o.absolute) add_absolute_floor(d, c, region, out, o, report, fixed_share);
-
     return torch::stack(out).contiguous();
 }
 
@@ -662,9 +660,12 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
                                          StackCocReport* report) {
     std::string line_bg, line_fg;
     torch::NoGradGuard no_grad;
+    std::vector<double> radii;
+    for (double r = 0; r <= o.rmax + 1e-9; r += o.rstep) radii.push_back(r);
+    const UniformBlurBank bank(d.height, d.width, radii, d.blur);
     const bool layered = d.has_subject && d.mask.defined();
     if (!layered) {
-        auto r = layer_radius(d, d.to_ref, {}, o, &line_bg,
+        auto r = layer_radius(d, d.to_ref, {}, bank, o, &line_bg,
                               report ? &report->fixed_focus_share : nullptr);
         if (report) report->summary = o.absolute ? "absolute floor: " + line_bg : "relative only";
         return r;
@@ -673,7 +674,7 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
     // track (a moving subject is not where the wall was: compared pixel by pixel across frames it
     // reads as blur, even in focus).
     auto mask = (d.mask > 0.5).to(torch::kFloat32);
-    auto bg = layer_radius(d, d.to_ref, 1.0 - mask, o, &line_bg,
+    auto bg = layer_radius(d, d.to_ref, 1.0 - mask, bank, o, &line_bg,
                            report ? &report->fixed_focus_share : nullptr);
     std::vector<double> vx, vy, sc;
     subject_track(d, vx, vy, &sc);
@@ -683,7 +684,7 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
         mats.push_back(sc[t] == 1.0 && sc[0] == 1.0
                            ? translation(vx[0] - vx[t], vy[0] - vy[t])
                            : torch::matmul(from_track0, subject_to_track(vx[t], vy[t], sc[t])));
-    auto fg = layer_radius(d, torch::stack(mats), mask, o, &line_fg);
+    auto fg = layer_radius(d, torch::stack(mats), mask, bank, o, &line_fg);
     if (report)
         report->summary = o.absolute ? "absolute floor: wall " + line_bg + "; subject " + line_fg
                                      : "relative only";
