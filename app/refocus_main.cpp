@@ -47,7 +47,8 @@ const Command kCommands[] = {
      "atlas <project> --import <file> --layer bg|fg | --clear [--layer bg|fg]",
      "bring back a repainted atlas (PNG/TIFF/EXR): the edit follows every frame"},
     {"synth", refocus::cmd_synth,
-     "synth --scene rack|walkout|pan|hunt|tripod|list -o <dir> [--size WxH] [--frames N] [--seed "
+     "synth --scene rack|walkout|pan|hunt|tripod|pillar|list -o <dir> [--size WxH] [--frames N] "
+     "[--seed "
      "S]",
      "render a misfocused test clip with exact ground truth (sharp, COC, alpha, flow)"},
 };

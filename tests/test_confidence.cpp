@@ -104,11 +104,12 @@ TEST_CASE("the unexplained share: a region far above the frame's typical residua
     const int H = 48, W = 48;
     auto e = torch::full({1, 1, H, W}, 0.01);
     e[0][0].narrow(0, 16, 16).narrow(1, 16, 16).fill_(0.2);  // a 16 px region unexplained
-    e[0][0][4][4] = 0.5;                                     // one hot pixel: noise, opened away
+    for (int y = 0; y < H; ++y) e[0][0][y][40] = 0.5;        // a 1-px band: an edge under parallax
     auto u = unexplained_share(e, 4.0, 0.04);
     CHECK(px_at(u, 24, 24) == doctest::Approx(1.0));
+    CHECK(px_at(u, 24, 40) > 0.3);  // a thin band falls back too (not opened away)
     CHECK(px_at(u, 4, 4) == doctest::Approx(0.0));
-    CHECK(px_at(u, 40, 40) == doctest::Approx(0.0));
+    CHECK(px_at(u, 24, 6) == doctest::Approx(0.0));
     CHECK_FALSE(unexplained_share(torch::full({1, 1, 4, 4}, -1.0), 4, 0.04).defined());
 }
 
@@ -182,7 +183,9 @@ TEST_CASE("a region whose radius is wrong falls back to the shot; the rest keeps
                                        << " dB, confidence " << k_right);
     CHECK(out_wrong > in_wrong - 0.5);  // never (much) worse than the shot
     CHECK(out_right > in_right + 1.0);  // where the model is right, it still fixes the shot
-    CHECK(k_wrong < k_right - 0.2);     // and the confidence pass says where
+    // And the confidence pass says where. The fallback starts at the frame's median residual,
+    // so even the right half is partly the shot; the wrong half is half as confident.
+    CHECK(k_wrong < k_right - 0.1);
 }
 
 TEST_CASE(
@@ -210,11 +213,17 @@ TEST_CASE(
                   (c.dir / "sharp").string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
-    // Export says so: most of the plate is the shot because no frame saw it sharp.
-    const auto at = r.output.find("% that no frame saw sharp");
-    REQUIRE(at != std::string::npos);
-    const auto from = r.output.rfind(' ', at) + 1;
-    CHECK(std::stod(r.output.substr(from, at - from)) > 50.0);
+    // Export says so: the plate is the shot where the fit cannot explain the shot, and where it
+    // can (the frames agree on the wrong answer) because no frame saw it sharp.
+    auto share = [&](const std::string& what) {
+        const auto at = r.output.find(what);
+        REQUIRE(at != std::string::npos);
+        const auto from = r.output.rfind(' ', at) + 1;
+        return std::stod(r.output.substr(from, at - from));
+    };
+    const double unseen = share("% that no frame saw sharp");
+    CHECK(unseen > 20.0);
+    CHECK(share("% of pixels the fit cannot explain") + unseen > 95.0);
     const auto sharp = read_all_frames((c.dir / "sharp/sharp_%04d.exr").string());
     r = test::cli("export '" + c.project.string() + "' --what confidence --format exr32 --out '" +
                   (c.dir / "conf").string() + "'");

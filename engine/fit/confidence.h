@@ -12,8 +12,8 @@ namespace refocus {
 
 // How much of frame t's residual the model leaves unexplained, [1,1,H,W] in [0,1], from its
 // running reblur residual `resid` ([1,1,H,W], sRGB, -1 where not measured yet: undefined
-// returned): smoothstep from max(k·median, min) to twice that, opened by 9 px (a thin band along
-// an occlusion edge is better fitted than the shot), grown and feathered by 4 px (no seam).
+// returned): smoothstep from max(k·median, min) to twice that, grown and feathered by 4 px (no
+// seam). Thin unexplained bands are kept: under parallax they are where the atlas is wrong.
 torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min);
 
 // Map m_s ([1,C,H,W]) of frame s drawn in frame t's pixels through the camera's homographies

@@ -43,8 +43,8 @@ struct FitOptions {
     int64_t robust_warmup = 60;  // steps before the weights apply (the first fit is blurry)
     // Fallback (FitEngine::fallback_weight): from `fallback_k` x the frame's median residual
     // (and at least `fallback_min`, sRGB) the input shows through, fully at twice that.
-    double fallback_k = 2.0;
-    double fallback_min = 0.02;
+    double fallback_k = 1.0;
+    double fallback_min = 0.01;
     int fallback_frames = 2;  // smooth in time: grown over ±n frames, then averaged over ±n
     // Nothing to fix: where no blur of at least this radius (px) reaches a pixel, the output is
     // the shot (0: off).

@@ -239,6 +239,9 @@ const SceneDef kScenes[] = {
     {"tripod",
      "locked-off camera, static subject, focus sweeps wall -> subject -> wall (focus breathing "
      "on a tripod: every depth is sharp in some frame)"},
+    {"pillar",
+     "the camera trucks sideways past a pillar standing in front of the wall (both background: "
+     "parallax within a layer that no homography explains); focus racks wall -> subject"},
 };
 
 int scene_index(const std::string& name) {
@@ -277,10 +280,15 @@ SynthClip::SynthClip(const SynthOptions& opts) : m_opts(opts) {
     double rmax = 0;
     for (int t = 0; t < opts.frames; ++t) {
         const auto s = state(t);
-        for (double d : {s.fg_invdepth, m_d_top, m_d_bottom})
+        for (double d : {s.fg_invdepth, m_d_top, m_d_bottom, kPillarInvdepth})
             rmax = std::max(rmax, m_aperture * std::abs(d - s.focus));
     }
     m_margin = static_cast<int>(std::ceil(rmax * 1.05)) + 2;
+}
+
+bool SynthClip::on_pillar(double x, const SynthFrameState& st) const {
+    const double u = (x - st.pan * kPillarInvdepth - st.shake_x) / m_scale;  // reference px
+    return std::abs(u - kPillarU) < 0.5 * kPillarWidth;
 }
 
 double SynthClip::bg_invdepth(double y) const {
@@ -318,6 +326,12 @@ SynthFrameState SynthClip::state(int t) const {
         s.fg_x = W * (0.75 - 0.5 * tau);
         s.fg_y = H * 0.57;
         s.pan = S * (-60 + 120 * tau);
+    } else if (m_opts.scene == "pillar") {
+        s.focus = lerp(0.3, 1.0, smoothstep(0.2, 0.8, tau));
+        s.fg_invdepth = 1.0;
+        s.fg_x = W * 0.72;
+        s.fg_y = H * 0.56;
+        s.pan = S * (-30 + 60 * tau);
     } else if (m_opts.scene == "tripod") {
         const double tri = 1.0 - std::abs(2.0 * tau - 1.0);  // 0 → 1 → 0
         s.focus = lerp(0.15, 1.0, tri);
@@ -362,6 +376,7 @@ std::vector<ApertureLayer> SynthClip::layers(int t) const {
     const double fcx = st.fg_x + st.pan * st.fg_invdepth + st.shake_x;
     const double fcy = st.fg_y + st.shake_y;
     const double feather = 1.2;  // px: the soft alpha edge
+    const bool pillar = m_opts.scene == "pillar";
     // 3x3 supersampling of the textures (box filter): fine detail without aliasing.
     constexpr int kSS = 3;
 #pragma omp parallel for schedule(dynamic, 4)
@@ -370,14 +385,18 @@ std::vector<ApertureLayer> SynthClip::layers(int t) const {
             const double x = X - m, y = Y - m;  // screen px
             // Background: the wall row is fixed to the surface, so its depth moves with shake_y.
             const double d = bg_invdepth(y - st.shake_y);
-            bg.invdepth.at(X, Y, 0) = static_cast<float>(d);
+            // The pillar (scene "pillar") occludes the wall where a ray meets it.
+            const bool pillar_px = pillar && on_pillar(x, st);
+            bg.invdepth.at(X, Y, 0) = static_cast<float>(pillar_px ? kPillarInvdepth : d);
             Rgb acc = {0, 0, 0}, facc = {0, 0, 0};
             for (int sy = 0; sy < kSS; ++sy)
                 for (int sx = 0; sx < kSS; ++sx) {
                     const double ox = (sx + 0.5) / kSS - 0.5, oy = (sy + 0.5) / kSS - 0.5;
-                    const double u = (x + ox - st.pan * d - st.shake_x) / S;
                     const double v = (y + oy - st.shake_y) / S;
-                    const Rgb c = wall(seed, u, v);
+                    const bool hit = pillar && on_pillar(x + ox, st);
+                    const double u =
+                        (x + ox - st.pan * (hit ? kPillarInvdepth : d) - st.shake_x) / S;
+                    const Rgb c = hit ? wall(seed ^ 0x9111a5u, 2 * u, 2 * v) : wall(seed, u, v);
                     acc = {acc.r + c.r, acc.g + c.g, acc.b + c.b};
                     const Rgb f =
                         subject_color(seed, (x + ox - fcx) / fscale, (y + oy - fcy) / fscale);
@@ -497,6 +516,15 @@ std::string SynthClip::clip_json() const {
         {"invdepth_top", m_d_top},
         {"invdepth_bottom", m_d_bottom},
         {"invdepth_formula", "invdepth(y) = top + (bottom - top) * (y - shake_y + 0.5) / height"}};
+    if (m_opts.scene == "pillar")
+        j["background"]["pillar"] = {
+            {"invdepth", kPillarInvdepth},
+            {"u_center", kPillarU},
+            {"width", kPillarWidth},
+            {"meaning",
+             "a full-height band of the background layer in front of the wall, at "
+             "screen x = u * H/180 + pan * invdepth + shake_x (u in px of the "
+             "320x180 reference)"}};
     j["camera"] = {{"pan", pan},
                    {"pan_meaning", "a point at inverse depth d is displaced pan * d px in x"},
                    {"shake_px", shake},

@@ -7,7 +7,9 @@
 //   background: a slanted plane (a wall of posters: text-like glyphs at several sizes, checkers,
 //     stripes, Siemens stars, coloured noise), its inverse depth affine in the image row,
 //     d(y) = d_top + (d_bottom − d_top)·(y + 0.5)/H — exact for a plane tilted about the
-//     horizontal axis (inverse depth of a plane is affine in image coordinates);
+//     horizontal axis (inverse depth of a plane is affine in image coordinates); in scene
+//     "pillar" a full-height band of the same layer stands in front of it, nearer, so that the
+//     layer's motion under a trucking camera is no homography (parallax within a layer);
 //   foreground: a textured subject (head + torso) with a soft alpha edge, fronto-parallel at
 //     one inverse depth per frame, its size proportional to that inverse depth (perspective).
 // Camera: a horizontal translation (pan) that moves a point at inverse depth d by pan·d px
@@ -28,7 +30,7 @@ struct SynthSceneInfo {
     std::string description;
 };
 
-// The scenes `refocus synth --scene NAME` knows: rack, walkout, pan, hunt.
+// The scenes `refocus synth --scene NAME` knows: rack, walkout, pan, hunt, tripod, pillar.
 const std::vector<SynthSceneInfo>& synth_scenes();
 
 struct SynthOptions {
@@ -87,6 +89,10 @@ class SynthClip {
 
   private:
     double bg_invdepth(double y) const;  // y in screen px (the surface's own row)
+    // Whether screen column x (px) sees the pillar of scene "pillar" in frame state st.
+    bool on_pillar(double x, const SynthFrameState& st) const;
+    // Scene "pillar": a full-height band in front of the wall, reference px and inverse depth.
+    static constexpr double kPillarInvdepth = 0.8, kPillarU = 100.0, kPillarWidth = 26.0;
     SynthOptions m_opts;
     double m_scale = 1.0;  // H / 180: scene units are px of the 320x180 reference
     double m_aperture = 0.0;
