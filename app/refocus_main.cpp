@@ -48,8 +48,7 @@ const Command kCommands[] = {
      "bring back a repainted atlas (PNG/TIFF/EXR): the edit follows every frame"},
     {"synth", refocus::cmd_synth,
      "synth --scene rack|walkout|pan|hunt|tripod|pillar|list -o <dir> [--size WxH] [--frames N] "
-     "[--seed "
-     "S]",
+     "[--seed S]",
      "render a misfocused test clip with exact ground truth (sharp, COC, alpha, flow)"},
 };
 

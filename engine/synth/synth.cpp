@@ -278,9 +278,10 @@ SynthClip::SynthClip(const SynthOptions& opts) : m_opts(opts) {
     // The margin covers the largest blur anywhere in the clip (plus the bilinear footprint), so
     // that every aperture sample of a visible pixel lands on rendered layer content.
     double rmax = 0;
+    const double nearest_bg = opts.scene == "pillar" ? kPillarInvdepth : m_d_bottom;
     for (int t = 0; t < opts.frames; ++t) {
         const auto s = state(t);
-        for (double d : {s.fg_invdepth, m_d_top, m_d_bottom, kPillarInvdepth})
+        for (double d : {s.fg_invdepth, m_d_top, m_d_bottom, nearest_bg})
             rmax = std::max(rmax, m_aperture * std::abs(d - s.focus));
     }
     m_margin = static_cast<int>(std::ceil(rmax * 1.05)) + 2;
