@@ -21,6 +21,13 @@ double px_at(const torch::Tensor& m, int y, int x) {
     return m[0][0][y][x].item<double>();
 }
 
+// Frame s's radius map [H,W]: frame 3 sees the left half at 0.5 px, everything else is at 6 px.
+torch::Tensor left_sharp_in_frame3(int s, int H, int W) {
+    auto r = torch::full({H, W}, 6.0);
+    if (s == 3) r.narrow(1, 0, W / 2).fill_(0.5);
+    return r;
+}
+
 }  // namespace
 
 TEST_CASE("an isolated bad frame falls back fully and its neighbours fade toward it") {
@@ -70,12 +77,7 @@ TEST_CASE("the need to fix: zero where no blur reaches, one within a blurred reg
 
 TEST_CASE("the sharpest the clip saw a pixel, and how far that lets the model restore it") {
     const int T = 6, H = 12, W = 20;
-    // Frame 3 sees the left half at 0.5 px; every other frame sees all at 6 px.
-    auto radius_of = [&](int s) {
-        auto r = torch::full({H, W}, 6.0);
-        if (s == 3) r.narrow(1, 0, W / 2).fill_(0.5);
-        return r;
-    };
+    auto radius_of = [&](int s) { return left_sharp_in_frame3(s, H, W); };
     auto still = torch::eye(3, torch::kFloat64).repeat({T, 1, 1});
     for (bool static_camera : {true, false}) {
         auto best = sharpest_seen(0, T, 32, still, static_camera, 30.0, radius_of);
@@ -98,6 +100,24 @@ TEST_CASE("the sharpest the clip saw a pixel, and how far that lets the model re
     // With a stride the spread still reaches every part of the clip.
     CHECK(px_at(sharpest_seen(0, T, 2, still, true, 30.0, radius_of), 6, 2) ==
           doctest::Approx(0.5));
+}
+
+TEST_CASE("a sharper view: the model replaces a pixel only where another frame saw it sharper") {
+    const int T = 6, H = 12, W = 40;
+    auto radius_of = [&](int s) { return left_sharp_in_frame3(s, H, W); };
+    auto still = torch::eye(3, torch::kFloat64).repeat({T, 1, 1});
+    auto best = sharpest_seen(0, T, 32, still, true, 30.0, radius_of);
+    // Frame 0: frame 3 saw the left half 5.5 px sharper; nobody saw the right half sharper.
+    auto g0 = sharper_view(radius_of(0), best, 1.0);
+    CHECK(px_at(g0, 6, 2) == doctest::Approx(1.0));
+    CHECK(px_at(g0, 6, 37) == doctest::Approx(0.0));
+    // Frame 3 is its own sharpest view everywhere, but the blur of its right half spills up to
+    // 6 px into the left half, which other frames saw no sharper: the model is kept there.
+    auto g3 = sharper_view(radius_of(3), best, 1.0);
+    CHECK(px_at(g3, 6, 2) == doctest::Approx(0.0));
+    CHECK(px_at(g3, 6, 18) > 0.3);  // the right half's blur spills 2 px away
+    CHECK(px_at(g3, 6, 37) == doctest::Approx(0.0));
+    CHECK(sharper_view(radius_of(0), best, 0).min().item<double>() == 1.0);  // off
 }
 
 TEST_CASE("the unexplained share: a region far above the frame's typical residual") {

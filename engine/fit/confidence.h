@@ -1,6 +1,6 @@
 #pragma once
 // Never worse than the shot (docs/method.md, Confidence and fallback). The output of frame t is
-//     S_t = w_t · C_t + (1 − w_t) · I_t,      w_t = κ_t · ν_t
+//     S_t = w_t · C_t + (1 − w_t) · I_t,      w_t = κ_t · τ_t · ν_t (· γ_t, fit.sharper_view_px)
 // with C_t the model's sharp frame, I_t the input, κ_t the confidence that the model explains
 // the region (agreement of the frames that see it through the shared atlas) and ν_t the need: 0
 // where no blur reaches the pixel (nothing to fix, the shot is already the answer).
@@ -47,6 +47,14 @@ torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px);
 // pixel q reaches p when |p − q| ≤ r(q): r is dilated by a cone (iterated 3x3 max − 1 px), so a
 // blurred subject's spill over an in-focus wall counts as blur to fix. radius [H,W] px.
 torch::Tensor blur_need(const torch::Tensor& radius, double focus_px);
+
+// γ: 0 where frame t is (within gain_px) its own sharpest view of the pixel, 1 where some frame
+// saw it sharper by twice that: the reach of frame t's blur (the cone dilation blur_need uses,
+// so that a blurred subject's spill counts) less `sharpest` (sharpest_seen), smoothstep from
+// gain_px to 2·gain_px, feathered by 4 px. The atlas carries detail over from a sharper view;
+// where there is none, what it adds is deconvolution's. radius [H,W] px, sharpest [1,1,H,W].
+torch::Tensor sharper_view(const torch::Tensor& radius, const torch::Tensor& sharpest,
+                           double gain_px);
 
 // Separable Gaussian of standard deviation sigma px (support ±3σ, edges replicated), [N,C,H,W].
 torch::Tensor gaussian_blur(const torch::Tensor& x, double sigma);

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 
+#include "fit/flow_warp.h"
 #include "model/atlas_geometry.h"
 #include "fit/crops.h"
 #include "fit/losses.h"
@@ -162,7 +163,20 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
             m_bg.to_atlas = before;
     }
     debug_memory("fast model: aligned");
-    init_levels(m_bg, fuse(m_bg, bg_weight));
+    if (m_bg.learn_warp && m_opts.flow_warp && d.flow_fwd.defined() && T > 1) {
+        const int64_t c = m_opts.flow_warp_cell_px;
+        const auto fw = warps_from_flow(
+            m_bg.to_atlas, m_bg.scale, d.flow_fwd, d.flow_valid,
+            [&](int64_t t) { return bg_region[t]; }, H / c + 2, W / c + 2);
+        m_bg.warp = fw.warp;
+        char line[240];
+        std::snprintf(line, sizeof line,
+                      "fit (fast): background warps from the flow (%lld correspondences): frames "
+                      "disagree by %.2f px through the homographies, %.2f px with the warps",
+                      (long long)fw.points, fw.before_px, fw.after_px);
+        notes.push_back(line);
+    }
+    init_levels(m_bg, fuse(m_bg, bg_weight, {}, true));
     debug_memory("fast model: background fused");
     if (m_opts.deblur_path) {
         auto line =
@@ -415,12 +429,24 @@ std::string FastModel::make_deblur_path(Atlas& a, const torch::Tensor& radius,
 }
 
 torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
-                              const torch::Tensor& what) const {
+                              const torch::Tensor& what, bool with_warp) const {
     // The margin starts as the frames' edges replicated outward, trusted 1000x less than what a
     // frame saw (a moving camera sees another frame's margin).
     const int64_t P = m_opts.pad;
     const torch::Tensor& src = what.defined() ? what : m_data.input;
-    if (P == 0) return fuse_frames(a.to_atlas, a.height, a.width, src, weight);
+    // The residual warps as map_coords adds them, when asked: only the first atlas is fused
+    // through warps (from the flow); later fusions (TV weights, coverage) read the geometry,
+    // which a resumed fit must find as the uninterrupted one did.
+    std::function<torch::Tensor(int64_t)> offset;
+    if (with_warp && a.warp.defined() && a.warp.abs().max().item<double>() > 0)
+        offset = [&](int64_t t) {
+            const int64_t H = m_data.height, W = m_data.width;
+            return (a.scale * pad_edges(upsample(a.warp[t].unsqueeze(0), H, W, true), P))[0];
+        };
+    if (P == 0)
+        return fuse_frames(
+            a.to_atlas, a.height, a.width, [&](int64_t t) { return src[t]; },
+            [&](int64_t t) { return weight[t]; }, offset);
     auto inside = F::pad(torch::ones({1, 1, m_data.height, m_data.width}),
                          F::PadFuncOptions({P, P, P, P}).value(1e-3));
     auto shift = translation(-P, -P).to(a.to_atlas.dtype());
@@ -428,7 +454,7 @@ torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
     return fuse_frames(
         torch::matmul(a.to_atlas, shift), a.height, a.width,
         [&](int64_t t) { return pad_edges(src[t].unsqueeze(0), P)[0]; },
-        [&](int64_t t) { return (pad_edges(weight[t].unsqueeze(0), P) * inside)[0]; });
+        [&](int64_t t) { return (pad_edges(weight[t].unsqueeze(0), P) * inside)[0]; }, offset);
 }
 
 void FastModel::init_levels(Atlas& a, const torch::Tensor& fused) {
@@ -707,6 +733,12 @@ void FastModel::adopt_geometry(Atlas& a, const std::string& name,
         auto it = s.find(name + "_level" + std::to_string(l));
         if (it != s.end() && !it->second.sizes().equals(a.levels[l].sizes()))
             a.levels[l] = torch::zeros_like(it->second);  // copied into by FitModel::load_state
+    }
+    {  // the residual warps' grid is the checkpoint's (fast.flow_warp_cell_px may differ)
+        auto it = s.find(name + "_warp");
+        if (it != s.end() && it->second.dim() == 4 && it->second.size(0) == a.warp.size(0) &&
+            it->second.size(1) == 2 && !it->second.sizes().equals(a.warp.sizes()))
+            a.warp = torch::zeros_like(it->second).set_requires_grad(a.warp.requires_grad());
     }
     if (a.deblur.defined()) {
         auto it = s.find(name + "_deblur");

@@ -21,6 +21,11 @@ namespace refocus {
 struct FastModelOptions {
     int levels = 4;         // atlas pyramid levels
     int warp_cell_px = 32;  // residual warp grid spacing
+    // A moving camera's background warps start from the optical flow (flow_warp.h), on a grid
+    // this fine: parallax within the layer (a pillar sliding across a wall) is a field, not a
+    // homography's error.
+    bool flow_warp = false;
+    int flow_warp_cell_px = 8;
     double lr_atlas = 0.01;
     double lr_warp = 0.05;  // px per step (Adam)
     double lr_alpha = 0.05;
@@ -141,8 +146,9 @@ class FastModel : public FitModel {
     static torch::Tensor warp_smoothness(const torch::Tensor& w);
     void init_levels(Atlas& a, const torch::Tensor& fused);
     // Frames (or `what`, [T,C,H,W] in frame px) fused into the atlas, sharpest-weighted.
-    torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight,
-                       const torch::Tensor& what = {}) const;
+    // With `with_warp`, pulled back through the residual warps too.
+    torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight, const torch::Tensor& what = {},
+                       bool with_warp = false) const;
     void update_tv_weights();  // each atlas's tv_weight, from the data and its geometry
     torch::Tensor tv_weight_map(const Atlas& a, const torch::Tensor& radius,
                                 const torch::Tensor& weight, const torch::Tensor& views,

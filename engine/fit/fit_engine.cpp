@@ -456,24 +456,28 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
     return f;
 }
 
-torch::Tensor FitEngine::seen_trust_map(int t) const {
-    if (m_model->steps_itself() || !(m_opts.trust_seen_px > 0) || t < 0 || t >= m_data->frames)
-        return {};
+torch::Tensor FitEngine::sharpest_seen_map(int t) const {
+    if (m_model->steps_itself() || t < 0 || t >= m_data->frames) return {};
     std::lock_guard<std::mutex> lock(m_unexplained_mutex);
     if (m_seen.empty()) m_seen.assign(m_data->frames, torch::Tensor());
     // A static camera sees each pixel at the same place in every frame: one map, over all of
     // them, serves every frame.
     const bool still = m_data->static_camera;
-    auto& tau = m_seen[still ? 0 : t];
-    if (!tau.defined()) {
+    auto& best = m_seen[still ? 0 : t];
+    if (!best.defined()) {
         // Where a frame did not see the pixel it reads past any trust: it lowers no minimum.
-        const double unseen = 4.0 * m_opts.trust_seen_px + 1.0;
-        auto best =
+        const double unseen = 4.0 * std::max(m_opts.trust_seen_px, 2.0) + 1.0;
+        best =
             sharpest_seen(still ? 0 : t, m_data->frames, still ? m_data->frames : 32,
                           m_data->to_ref, still, unseen, [&](int s) { return m_data->radius[s]; });
-        tau = seen_trust(best, m_opts.trust_seen_px);
     }
-    return tau;
+    return best;
+}
+
+torch::Tensor FitEngine::seen_trust_map(int t) const {
+    if (!(m_opts.trust_seen_px > 0)) return {};
+    auto best = sharpest_seen_map(t);
+    return best.defined() ? seen_trust(best, m_opts.trust_seen_px) : best;
 }
 
 torch::Tensor FitEngine::confidence(int t) const {
@@ -487,6 +491,10 @@ torch::Tensor FitEngine::model_weight(int t) const {
     if (t < 0 || t >= m_data->frames) return {};
     auto w = confidence(t);
     if (m_opts.keep_focus_px > 0) w = w * blur_need(m_data->radius[t], m_opts.keep_focus_px);
+    if (m_opts.sharper_view_px > 0) {
+        auto best = sharpest_seen_map(t);
+        if (best.defined()) w = w * sharper_view(m_data->radius[t], best, m_opts.sharper_view_px);
+    }
     if (!(w < 1 - 1e-3).any().item<bool>()) return {};
     return w;
 }

@@ -57,6 +57,11 @@ struct FitOptions {
     // saw it blurred by at most this radius (px), and not from twice that: detail no frame
     // recorded comes from deconvolution alone (0: trust it everywhere).
     double trust_seen_px = 2.0;
+    // Sharper view (confidence.h, sharper_view): the model replaces frame t's pixel only where
+    // some frame saw it sharper than frame t did, by more than this (px), fully from twice
+    // that: where frame t is its own sharpest view, the atlas has no detail the shot lacks and
+    // only deconvolution could add any (0: off).
+    double sharper_view_px = 0.0;
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;
@@ -135,6 +140,8 @@ class FitEngine {
     // τ_t (confidence.h, seen_trust), undefined when fit.trust_seen_px is off. Cached: the
     // radius maps do not change while the engine lives.
     torch::Tensor seen_trust_map(int t) const;
+    // The least radius any frame saw frame t's pixels at (confidence.h, sharpest_seen), cached.
+    torch::Tensor sharpest_seen_map(int t) const;
     // The model's share of the output: confidence(t) times the need (0 where no blur reaches
     // the pixel, fit.keep_focus_px). [1,1,H,W], undefined when it is 1 everywhere.
     torch::Tensor model_weight(int t) const;
@@ -188,7 +195,7 @@ class FitEngine {
     // of a frame reads its neighbours', and the residual only changes with a step.
     mutable std::vector<torch::Tensor> m_unexplained;
     mutable int64_t m_unexplained_step = -1;
-    mutable std::vector<torch::Tensor> m_seen;  // seen_trust_map's cache, under the mutex below
+    mutable std::vector<torch::Tensor> m_seen;  // sharpest_seen_map's cache, under the mutex below
     mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;  // whether steps take crops (FitOptions::crop_px, and the model

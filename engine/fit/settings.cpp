@@ -57,6 +57,9 @@ const std::vector<Field<FitOptions>>& fit_fields() {
         {"fit.trust_seen_px", &O::trust_seen_px, 0, 64,
          "the model restores a pixel fully where some frame saw it blurred by at most this "
          "radius (px), not from twice that; elsewhere the output is the shot (0: off)"},
+        {"fit.sharper_view_px", &O::sharper_view_px, 0, 64,
+         "the model replaces a pixel only where some frame saw it sharper than this frame did, "
+         "by more than this (px), fully from twice that (0: off)"},
         {"fit.keep_focus_px", &O::keep_focus_px, 0, 8,
          "where no blur of at least this radius (px) reaches a pixel, the output is the shot "
          "(0: off)"},
@@ -119,6 +122,9 @@ const std::vector<Field<FastModelOptions>>& fast_fields() {
         {"fast.bootstrap_halflife", &O::bootstrap_halflife, 1, 1e9,
          "... halving every this many steps"},
         {"fast.warp_cell_px", &O::warp_cell_px, 4, 1024, "residual warp grid spacing (px)"},
+        {"fast.flow_warp", &O::flow_warp, 0, 1,
+         "a moving camera's background warps start from the optical flow (parallax)"},
+        {"fast.flow_warp_cell_px", &O::flow_warp_cell_px, 2, 1024, "... on a grid this fine (px)"},
         {"fast.align_rounds", &O::align_rounds, 0, 20,
          "ECC alignment rounds at initialisation (0: off)"},
         {"fast.align_width", &O::align_width, 0, 1e5,

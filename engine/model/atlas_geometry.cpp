@@ -211,7 +211,8 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
 
 torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
                           const std::function<torch::Tensor(int64_t)>& src,
-                          const std::function<torch::Tensor(int64_t)>& weight) {
+                          const std::function<torch::Tensor(int64_t)>& weight,
+                          const std::function<torch::Tensor(int64_t)>& offset) {
     namespace F = torch::nn::functional;
     const int64_t T = to_atlas.size(0);
     auto ys = torch::arange(height, torch::kFloat32), xs = torch::arange(width, torch::kFloat32);
@@ -234,6 +235,20 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
         auto p = torch::matmul(inv, pts);
         auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, height, width, 2});
         auto grid = (xy + 0.5) * scale - 1.0;
+        if (offset) {
+            const auto off = offset(t).unsqueeze(0);  // [1,2,H,W]
+            auto border = F::GridSampleFuncOptions()
+                              .mode(torch::kBilinear)
+                              .padding_mode(torch::kBorder)
+                              .align_corners(false);
+            for (int k = 0; k < 3; ++k) {
+                auto o = F::grid_sample(off, grid, border)[0].view({2, -1});
+                auto a = torch::cat({pts.narrow(0, 0, 2) - o, pts.narrow(0, 2, 1)}, 0);
+                auto q = torch::matmul(inv, a);
+                xy = (q.narrow(0, 0, 2) / q.narrow(0, 2, 1)).t().view({1, height, width, 2});
+                grid = (xy + 0.5) * scale - 1.0;
+            }
+        }
         auto inside = F::grid_sample(ones, grid, opts)[0];
         auto col = sample_bicubic(s.unsqueeze(0), grid)[0];
         auto w = F::grid_sample(weight(t).unsqueeze(0), grid, opts)[0] * (inside > 0.999);

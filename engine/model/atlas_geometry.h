@@ -66,6 +66,10 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
 // derived frames (padded, weighted) then need not all exist at once.
 torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
                           const std::function<torch::Tensor(int64_t)>& src,
-                          const std::function<torch::Tensor(int64_t)>& weight);
+                          const std::function<torch::Tensor(int64_t)>& weight,
+                          const std::function<torch::Tensor(int64_t)>& offset = {});
+// `offset(t)` ([2,H,W] atlas px, optional) is added to frame t's mapping at each frame pixel (a
+// residual warp): atlas pixels are pulled back through it by fixed-point iteration
+// p ← h⁻¹(a − offset(p)), exact for a warp that varies slowly against its own size.
 
 }  // namespace refocus

@@ -1,0 +1,122 @@
+#include "fit/flow_warp.h"
+
+#include <torch/nn/functional.h>
+#include <torch/optim/adam.h>
+
+#include <vector>
+
+namespace refocus {
+
+namespace {
+namespace F = torch::nn::functional;
+
+// [N,2] frame px → grid_sample coordinates of a corner-aligned grid over an H × W frame (the
+// residual warps are upsampled with align_corners, fast_model.cpp).
+torch::Tensor corner_grid(const torch::Tensor& px, int64_t H, int64_t W) {
+    auto scale = torch::tensor(
+        {2.0f / float(std::max<int64_t>(W - 1, 1)), 2.0f / float(std::max<int64_t>(H - 1, 1))});
+    return (px * scale - 1.0).view({1, 1, -1, 2});
+}
+
+// Homography h ([3,3]) applied to [N,2] points.
+torch::Tensor apply_h(const torch::Tensor& h, const torch::Tensor& p) {
+    auto ph = torch::cat({p, torch::ones({p.size(0), 1})}, 1);
+    auto q = torch::matmul(ph, h.t());
+    return q.narrow(1, 0, 2) / q.narrow(1, 2, 1);
+}
+
+struct Pair {
+    int64_t t = 0;
+    torch::Tensor p, q;  // [n,2] frame px in frames t and t + 1
+    torch::Tensor d;     // [n,2] h_t(p) − h_{t+1}(q), atlas px
+};
+
+torch::Tensor sample(const torch::Tensor& w, const torch::Tensor& px, int64_t H, int64_t W) {
+    auto opts = F::GridSampleFuncOptions()
+                    .mode(torch::kBilinear)
+                    .padding_mode(torch::kBorder)
+                    .align_corners(true);
+    return F::grid_sample(w, corner_grid(px, H, W), opts)[0].view({2, -1}).t();  // [n,2]
+}
+
+}  // namespace
+
+FlowWarpResult warps_from_flow(const torch::Tensor& to_atlas, double scale,
+                               const torch::Tensor& flow, const torch::Tensor& valid,
+                               const std::function<torch::Tensor(int64_t)>& region, int64_t gh,
+                               int64_t gw, int iters, int stride) {
+    const int64_t T = to_atlas.size(0), H = flow.size(2), W = flow.size(3);
+    FlowWarpResult res;
+    res.warp = torch::zeros({T, 2, gh, gw});
+    if (T < 2 || flow.size(0) != T - 1) return res;
+    std::vector<Pair> pairs;
+    {
+        torch::NoGradGuard no_grad;
+        auto ys = torch::arange(stride / 2, H, stride, torch::kLong);
+        auto xs = torch::arange(stride / 2, W, stride, torch::kLong);
+        auto g = torch::meshgrid({ys, xs}, "ij");
+        auto iy = g[0].flatten(), ix = g[1].flatten();
+        auto lin = iy * W + ix;
+        auto p_all = torch::stack({ix, iy}, 1).to(torch::kFloat32);
+        auto h = to_atlas.to(torch::kFloat32);
+        torch::Tensor next_region = region(0)[0];
+        for (int64_t t = 0; t + 1 < T; ++t) {
+            auto here = next_region;
+            next_region = region(t + 1)[0];
+            auto f = flow[t].reshape({2, -1}).index_select(1, lin).t();  // [N,2]
+            auto ok = valid[t][0].flatten().index_select(0, lin) > 0.5;
+            ok = ok & (here.flatten().index_select(0, lin) > 0.5);
+            auto q = p_all + f;
+            auto qx = q.select(1, 0), qy = q.select(1, 1);
+            ok = ok & (qx >= 0) & (qx <= W - 1) & (qy >= 0) & (qy <= H - 1);
+            auto qi = qy.round().clamp(0, H - 1).to(torch::kLong) * W +
+                      qx.round().clamp(0, W - 1).to(torch::kLong);
+            ok = ok & (next_region.flatten().index_select(0, qi) > 0.5);
+            auto sel = ok.nonzero().flatten();
+            if (sel.numel() == 0) continue;
+            Pair pr;
+            pr.t = t;
+            pr.p = p_all.index_select(0, sel);
+            pr.q = q.index_select(0, sel);
+            pr.d = apply_h(h[t], pr.p) - apply_h(h[t + 1], pr.q);
+            res.points += sel.numel();
+            pairs.push_back(std::move(pr));
+        }
+    }
+    if (res.points == 0) return res;
+    torch::AutoGradMode grad(true);  // the model is built under a NoGradGuard
+    auto w = torch::zeros({T, 2, gh, gw}, torch::requires_grad());
+    const double smooth = 0.01, size = 1e-4, eps2 = 0.25;
+    auto disagreement = [&](bool robust) {
+        torch::Tensor sum = torch::zeros({});
+        for (const auto& pr : pairs) {
+            auto wp = sample(w[pr.t].unsqueeze(0), pr.p, H, W);
+            auto wq = sample(w[pr.t + 1].unsqueeze(0), pr.q, H, W);
+            auto r = pr.d + scale * (wp - wq);
+            auto n2 = r.pow(2).sum(1);
+            sum = sum + (robust ? (n2 + eps2).sqrt() : n2.sqrt()).sum();
+        }
+        return sum / double(res.points);
+    };
+    {
+        torch::NoGradGuard no_grad;
+        res.before_px = disagreement(false).item<double>();
+    }
+    torch::optim::Adam opt({w}, torch::optim::AdamOptions(0.3));
+    for (int i = 0; i < iters; ++i) {
+        opt.zero_grad();
+        auto dx = w.narrow(3, 1, gw - 1) - w.narrow(3, 0, gw - 1);
+        auto dy = w.narrow(2, 1, gh - 1) - w.narrow(2, 0, gh - 1);
+        auto loss = disagreement(true) + smooth * (dx.pow(2).mean() + dy.pow(2).mean()) +
+                    size * w.pow(2).mean();
+        loss.backward();
+        opt.step();
+    }
+    torch::NoGradGuard done;
+    res.after_px = disagreement(false).item<double>();
+    res.warp = w.detach().clone();
+
+    return res;
+}
+
+}  // namespace refocus
