@@ -67,12 +67,12 @@ TEST_CASE("the need to fix: zero where no blur reaches, one within a blurred reg
     const int H = 40, W = 40;
     auto r = torch::zeros({H, W});
     r.narrow(0, 15, 10).narrow(1, 15, 10).fill_(6.0);  // a blurred square, 6 px
-    auto need = blur_need(r, 0.5);
+    auto need = blur_need(blur_reach(r), 0.5);
     CHECK(px_at(need, 20, 20) == doctest::Approx(1.0));
     CHECK(px_at(need, 20, 28) == doctest::Approx(1.0));  // 4 px outside: its blur spills there
     CHECK(px_at(need, 20, 38) == doctest::Approx(0.0));  // 14 px outside: untouched
     CHECK(px_at(need, 2, 2) == doctest::Approx(0.0));
-    CHECK(blur_need(r, 0).min().item<double>() == 1.0);  // off
+    CHECK(blur_need(blur_reach(r), 0).min().item<double>() == 1.0);  // off
 }
 
 TEST_CASE("the sharpest the clip saw a pixel, and how far that lets the model restore it") {
@@ -108,16 +108,16 @@ TEST_CASE("a sharper view: the model replaces a pixel only where another frame s
     auto still = torch::eye(3, torch::kFloat64).repeat({T, 1, 1});
     auto best = sharpest_seen(0, T, 32, still, true, 30.0, radius_of);
     // Frame 0: frame 3 saw the left half 5.5 px sharper; nobody saw the right half sharper.
-    auto g0 = sharper_view(radius_of(0), best, 1.0);
+    auto g0 = sharper_view(blur_reach(radius_of(0)), best, 1.0);
     CHECK(px_at(g0, 6, 2) == doctest::Approx(1.0));
     CHECK(px_at(g0, 6, 37) == doctest::Approx(0.0));
     // Frame 3 is its own sharpest view everywhere, but the blur of its right half spills up to
     // 6 px into the left half, which other frames saw no sharper: the model is kept there.
-    auto g3 = sharper_view(radius_of(3), best, 1.0);
+    auto g3 = sharper_view(blur_reach(radius_of(3)), best, 1.0);
     CHECK(px_at(g3, 6, 2) == doctest::Approx(0.0));
     CHECK(px_at(g3, 6, 18) > 0.3);  // the right half's blur spills 2 px away
     CHECK(px_at(g3, 6, 37) == doctest::Approx(0.0));
-    CHECK(sharper_view(radius_of(0), best, 0).min().item<double>() == 1.0);  // off
+    CHECK(sharper_view(blur_reach(radius_of(0)), best, 0).min().item<double>() == 1.0);  // off
 }
 
 TEST_CASE("the unexplained share: a region far above the frame's typical residual") {

@@ -113,34 +113,27 @@ torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px) {
     return feather(1.0 - smoothstep01((sharpest - trust_px) / trust_px), 4);
 }
 
-namespace {
-
-// Cone dilation max_q (r(q) − |p − q|_∞) of radius [H,W] px: how far blur reaches each pixel.
 torch::Tensor blur_reach(const torch::Tensor& radius) {
+    torch::NoGradGuard g;
     auto r = radius.view({1, 1, radius.size(-2), radius.size(-1)}).to(torch::kFloat32);
-    // As many 3x3 steps as the widest radius.
+    // Cone dilation max_q (r(q) − |p − q|_∞): as many 3x3 steps as the widest radius.
     const int steps = std::min(64, static_cast<int>(std::ceil(r.max().item<double>())));
     auto reach = r;
     for (int i = 0; i < steps; ++i) reach = torch::maximum(reach, max_filter(reach, 1) - 1.0);
     return reach;
 }
 
-}  // namespace
-
-torch::Tensor blur_need(const torch::Tensor& radius, double focus_px) {
+torch::Tensor blur_need(const torch::Tensor& reach, double focus_px) {
     torch::NoGradGuard g;
-    if (!(focus_px > 0))
-        return torch::ones({1, 1, radius.size(-2), radius.size(-1)}, torch::kFloat32);
-    return smoothstep01((blur_reach(radius) - focus_px) / focus_px);
+    if (!(focus_px > 0)) return torch::ones_like(reach);
+    return smoothstep01((reach - focus_px) / focus_px);
 }
 
-torch::Tensor sharper_view(const torch::Tensor& radius, const torch::Tensor& sharpest,
+torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& sharpest,
                            double gain_px) {
     torch::NoGradGuard g;
-    if (!(gain_px > 0))
-        return torch::ones({1, 1, radius.size(-2), radius.size(-1)}, torch::kFloat32);
-    auto gain = blur_reach(radius) - sharpest.view({1, 1, radius.size(-2), radius.size(-1)});
-    return feather(smoothstep01((gain - gain_px) / gain_px), 4);
+    if (!(gain_px > 0)) return torch::ones_like(reach);
+    return feather(smoothstep01((reach - sharpest.view_as(reach) - gain_px) / gain_px), 4);
 }
 
 torch::Tensor gaussian_blur(const torch::Tensor& x, double sigma) {

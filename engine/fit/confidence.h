@@ -43,17 +43,20 @@ torch::Tensor sharpest_seen(int t, int frames, int max_frames, const torch::Tens
 // from the lens turn into ringing (docs/method.md, Confidence and fallback).
 torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px);
 
-// ν: 0 where no blur of radius ≥ focus_px reaches the pixel, 1 from twice that. The blur of a
-// pixel q reaches p when |p − q| ≤ r(q): r is dilated by a cone (iterated 3x3 max − 1 px), so a
-// blurred subject's spill over an in-focus wall counts as blur to fix. radius [H,W] px.
-torch::Tensor blur_need(const torch::Tensor& radius, double focus_px);
+// How far blur reaches each pixel: the cone dilation max_q (r(q) − |p − q|) of radius [H,W] px
+// (iterated 3x3 max − 1 px), so that a blurred subject's spill over an in-focus wall counts.
+// [1,1,H,W] px; ν and γ read it.
+torch::Tensor blur_reach(const torch::Tensor& radius);
+
+// ν: 0 where no blur of radius ≥ focus_px reaches the pixel, 1 from twice that. reach: blur_reach.
+torch::Tensor blur_need(const torch::Tensor& reach, double focus_px);
 
 // γ: 0 where frame t is (within gain_px) its own sharpest view of the pixel, 1 where some frame
-// saw it sharper by twice that: the reach of frame t's blur (the cone dilation blur_need uses,
-// so that a blurred subject's spill counts) less `sharpest` (sharpest_seen), smoothstep from
-// gain_px to 2·gain_px, feathered by 4 px. The atlas carries detail over from a sharper view;
-// where there is none, what it adds is deconvolution's. radius [H,W] px, sharpest [1,1,H,W].
-torch::Tensor sharper_view(const torch::Tensor& radius, const torch::Tensor& sharpest,
+// saw it sharper by twice that: the reach of frame t's blur (blur_reach of its radius, so that a
+// blurred subject's spill counts) less `sharpest` (sharpest_seen), smoothstep from gain_px to
+// 2·gain_px, feathered by 4 px. The atlas carries detail over from a sharper view; where there
+// is none, what it adds is deconvolution's. reach and sharpest [1,1,H,W] px.
+torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& sharpest,
                            double gain_px);
 
 // Separable Gaussian of standard deviation sigma px (support ±3σ, edges replicated), [N,C,H,W].

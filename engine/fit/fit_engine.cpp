@@ -490,10 +490,11 @@ torch::Tensor FitEngine::confidence(int t) const {
 torch::Tensor FitEngine::model_weight(int t) const {
     if (t < 0 || t >= m_data->frames) return {};
     auto w = confidence(t);
-    if (m_opts.keep_focus_px > 0) w = w * blur_need(m_data->radius[t], m_opts.keep_focus_px);
-    if (m_opts.sharper_view_px > 0) {
-        auto best = sharpest_seen_map(t);
-        if (best.defined()) w = w * sharper_view(m_data->radius[t], best, m_opts.sharper_view_px);
+    auto best = m_opts.sharper_view_px > 0 ? sharpest_seen_map(t) : torch::Tensor();
+    if (m_opts.keep_focus_px > 0 || best.defined()) {
+        const auto reach = blur_reach(m_data->radius[t]);  // ν and γ share the dilation
+        if (m_opts.keep_focus_px > 0) w = w * blur_need(reach, m_opts.keep_focus_px);
+        if (best.defined()) w = w * sharper_view(reach, best, m_opts.sharper_view_px);
     }
     if (!(w < 1 - 1e-3).any().item<bool>()) return {};
     return w;
