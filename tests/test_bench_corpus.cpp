@@ -9,6 +9,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <sstream>
 
+#include "io/image_file.h"
 #include "test_util.h"
 #include "util/fs.h"
 
@@ -185,4 +186,82 @@ TEST_CASE("bench corpus: one row per clip and a mean, the CSV, --split, bad corp
     CHECK(r.code != 0);
     CHECK(r.output.find((devonly / "rack" / "sharp_%04d.png").string() +
                         ": no ground-truth frames") != std::string::npos);
+}
+
+TEST_CASE("bench corpus --views: each pixel from the frame that saw it sharpest") {
+    // A hand-made rendered clip: a plane 2 m away, four frames whose camera trucks 2 px to the
+    // right at frame 1. Frame 1 is in focus and noiseless; the others are blurred (radius 3, 3,
+    // 2 px) and noisy. Every pixel frame 1 sees comes back from it, drawn through the cameras.
+    const fs::path root = scratch_dir("bench_corpus_views"), clip = root / "corpus" / "plane";
+    fs::create_directories(clip);
+    const int T = 4, W = 32, H = 24;
+    const double f = 30.0, z = 2.0, shift_px = 2.0;
+    const float radius[T] = {3, 0, 3, 2};
+    const float* lin = srgb8_to_linear_table();
+    auto code = [](int x, int y) { return 40 + (x * 37 + y * 91 + (x * y) % 13) % 170; };
+    std::vector<Image> sharp, input;
+    nlohmann::json cams = nlohmann::json::array();
+    for (int t = 0; t < T; ++t) {
+        const int dx = t == 1 ? static_cast<int>(shift_px) : 0;  // frame 1 sees x + 2 at x
+        Image s(W, H, 3), in(W, H, 3), depth(W, H, 1, float(z)), coc(W, H, 1, radius[t]);
+        for (int y = 0; y < H; ++y)
+            for (int x = 0; x < W; ++x)
+                for (int c = 0; c < 3; ++c) {
+                    const int v = code(x + dx, y) + 10 * c;
+                    const int noise = t == 1 ? 0 : ((x * 7 + y * 3 + t * 5 + c) % 17) - 8;
+                    s.at(x, y, c) = lin[v];
+                    in.at(x, y, c) = lin[std::clamp(v + noise, 0, 255)];
+                }
+        sharp.push_back(s), input.push_back(in);
+        char name[32];
+        std::snprintf(name, sizeof name, "depth_%04d.exr", t);
+        write_image_file((clip / name).string(), depth, PixelFormat::ExrFloat, false);
+        std::snprintf(name, sizeof name, "coc_%04d.exr", t);
+        write_image_file((clip / name).string(), coc, PixelFormat::ExrFloat, false);
+        // Camera to world, row-major: the camera moves +x by shift·z/f, so the plane moves left.
+        const double tx = dx * z / f;
+        cams.push_back({1, 0, 0, tx, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1});
+    }
+    for (int t = 0; t < T; ++t) {
+        char name[32];
+        std::snprintf(name, sizeof name, "sharp_%04d.png", t);
+        write_image_file((clip / name).string(), sharp[t], PixelFormat::Png8);
+        std::snprintf(name, sizeof name, "input_%04d.png", t);
+        write_image_file((clip / name).string(), input[t], PixelFormat::Png8);
+    }
+    nlohmann::json j = {{"name", "plane"},     {"split", "val"}, {"width", W},
+                        {"height", H},         {"frames", T},    {"lens", {{"focal_px", f}}},
+                        {"camera_world", cams}};
+    write_file_atomic(clip / "clip.json", j.dump(1));
+    const fs::path csv = root / "views.csv";
+    RunResult r = cli("bench corpus '" + (root / "corpus").string() + "' --views --csv '" +
+                      csv.string() + "'");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    CHECK(r.output.find("sharpest-view bound") != std::string::npos);
+    auto rows = read_csv(csv);
+    REQUIRE(rows.size() == 2);
+    const std::vector<std::string> h = rows[0];
+    auto val = [&](const std::string& name) {
+        const auto it = std::find(h.begin(), h.end(), name);
+        REQUIRE(it != h.end());
+        return std::stod(rows[1][static_cast<size_t>(it - h.begin())]);
+    };
+    CHECK(rows[1][0] == "plane");
+    // The noisy frames' pixels come from frame 1, which sees all but their two left columns
+    // (x < 2 lands outside it): those keep a noisy input. The mean holds frame 1 at the 100 dB
+    // cap (exact) and three noisy frames near 34 dB.
+    CHECK(val("in_psnr") < 55.0);
+    CHECK(val("least_psnr") > val("in_psnr") + 5.0);
+    CHECK(val("least_worst") >= 0.0);
+    CHECK(val("near_psnr") == doctest::Approx(val("least_psnr")).epsilon(1e-6));
+    CHECK(val("sharper_share") == doctest::Approx(0.75 * (W - 2) / W).epsilon(1e-6));
+    CHECK(val("least_tpsnr") > val("in_tpsnr"));
+
+    // A clip without the cameras (a synth clip's clip.json) is refused, naming the file.
+    j.erase("camera_world");
+    write_file_atomic(clip / "clip.json", j.dump(1));
+    r = cli("bench corpus '" + (root / "corpus").string() + "' --views");
+    CHECK(r.code != 0);
+    CHECK(r.output.find((clip / "clip.json").string() + ": no camera_world") != std::string::npos);
 }

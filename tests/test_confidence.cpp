@@ -176,7 +176,9 @@ TEST_CASE("a region whose radius is wrong falls back to the shot; the rest keeps
         std::snprintf(name, sizeof name, "coc_%04d.exr", t);
         write_image_file((wrong / name).string(), m, PixelFormat::ExrFloat, false);
     }
-    auto r = test::cli("fit '" + c.project.string() + "' --iters 200 --coc '" +
+    // κ alone (the sharper-view rule off): the wrong half is told by the frames' disagreement.
+    auto r = test::cli("fit '" + c.project.string() +
+                       "' --iters 200 --set fit.sharper_view_px=0 --coc '" +
                        (wrong / "coc_%04d.exr").string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
@@ -206,6 +208,21 @@ TEST_CASE("a region whose radius is wrong falls back to the shot; the rest keeps
     // And the confidence pass says where. The fallback starts at the frame's median residual,
     // so even the right half is partly the shot; the wrong half is half as confident.
     CHECK(k_wrong < k_right - 0.1);
+
+    // The default sharper-view rule (2 px) acts on the output only: the same fit exported with
+    // it keeps the shot where a frame is its own sharpest view. No frame falls below its input,
+    // and the right half, which the focus pull shows sharper in other frames, still gains.
+    test::set_project_setting(c.project, "fit.sharper_view_px", std::nullopt);
+    const auto gamma = test::export_sharp(c, "sharp_default");
+    double worst = 1e9, out_right_g = 0;
+    for (int t = 0; t < T; ++t) {
+        worst = std::min(worst, psnr(gamma[t], gt[t]) - psnr(input[t], gt[t]));
+        out_right_g += masked_psnr(gamma[t], gt[t], half, MaskRegion::Outside) / T;
+    }
+    MESSAGE("default sharper-view rule: worst frame " << worst << " dB, true radius half "
+                                                      << out_right_g << " dB");
+    CHECK(worst > -0.5);
+    CHECK(out_right_g > in_right + 0.2);
 }
 
 TEST_CASE(

@@ -20,8 +20,11 @@ using namespace refocus::test;
 
 TEST_CASE("fast fit of a tiny clip beats its input and exports every pass") {
     TinyClip c = make_tiny("fit_tiny");
-    RunResult r = cli("fit '" + c.project.string() + "' --iters 150 --coc '" +
-                      (c.clip / "coc_%04d.exr").string() + "'");
+    // The sharper-view rule off: the clip is made with the model's own kernel, where the atlas
+    // gains even in a frame that is its own sharpest view (the default keeps the shot there).
+    RunResult r =
+        cli("fit '" + c.project.string() + "' --iters 150 --set fit.sharper_view_px=0 --coc '" +
+            (c.clip / "coc_%04d.exr").string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
     CHECK(r.output.find("fit done") != std::string::npos);

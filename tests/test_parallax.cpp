@@ -61,7 +61,10 @@ double masked_mean(const Image& m, const Image& mask) {
 TEST_CASE("parallax within a layer: the fit beats the shot and the confidence pass marks it") {
     test::TinyClip c = test::make_tiny("parallax_pillar", "pillar", "160x90");
     const int T = 8;
-    auto r = test::cli("fit '" + c.project.string() + "' --iters 200 --coc '" +
+    // The sharper-view rule off: the clip is made with the model's kernel, and at 160x90 no
+    // frame sees the wall 2 px sharper than another. The default is checked on the same fit below.
+    auto r = test::cli("fit '" + c.project.string() +
+                       "' --iters 200 --set fit.sharper_view_px=0 --coc '" +
                        (c.clip / "coc_%04d.exr").string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
@@ -95,8 +98,20 @@ TEST_CASE("parallax within a layer: the fit beats the shot and the confidence pa
     MESSAGE("pillar: input " << in_p << " dB, output " << out_p << " dB, confidence " << k_p);
     MESSAGE("wall away from it: input " << in_w << " dB, output " << out_w << " dB, confidence "
                                         << k_w);
-    CHECK(out > in);            // the fit beats its input
+    CHECK(out > in + 1.0);      // the fit beats its input
     CHECK(worst > -0.5);        // and no frame is worse than the shot
     CHECK(out_p > in_p - 0.5);  // not even on the pillar the atlas cannot follow
     CHECK(k_p < k_w - 0.2);     // and the confidence pass says where the parallax is
+
+    // The same fit at the defaults (the rule acts on the output only): still never worse.
+    test::set_project_setting(c.project, "fit.sharper_view_px", std::nullopt);
+    const auto plate = test::export_sharp(c, "sharp_default");
+    double out_d = 0, worst_d = 1e9;
+    for (int t = 0; t < T; ++t) {
+        const double d = psnr(plate[t], gt[t]);
+        out_d += d / T, worst_d = std::min(worst_d, d - psnr(input[t], gt[t]));
+    }
+    MESSAGE("defaults: output " << out_d << " dB, worst frame " << worst_d << " dB");
+    CHECK(out_d >= in - 1e-3);
+    CHECK(worst_d > -0.5);
 }

@@ -13,6 +13,8 @@
 
 #include <doctest/doctest.h>
 
+#include <nlohmann/json.hpp>
+
 #include "model/fit_model.h"
 #include "io/clip.h"
 #include "io/image_file.h"
@@ -103,6 +105,18 @@ std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub) {
     INFO(r.output);
     REQUIRE(r.code == 0);
     return read_all_frames((out / "sharp_%04d.exr").string());
+}
+
+void set_project_setting(const fs::path& project, const std::string& name,
+                         std::optional<double> value) {
+    const fs::path path = project / "project.json";
+    nlohmann::json j = nlohmann::json::parse(read_text_file(path));
+    auto& settings = j["fit"]["settings"];
+    if (value)
+        settings[name] = *value;
+    else if (settings.is_object())
+        settings.erase(name);
+    write_file_atomic(path, j.dump(1));
 }
 
 std::shared_ptr<FitData> tiny_two_layer_data(unsigned seed, bool with_flow) {

@@ -1,9 +1,9 @@
 #pragma once
 // Shared helpers for the test suites: scratch folders, running the CLI, small test images.
+#include <memory>
+#include <optional>
 #include <string>
 #include <vector>
-
-#include <memory>
 
 #include "io/image.h"
 #include "util/fs.h"
@@ -47,6 +47,11 @@ TinyClip make_tiny(const std::string& name, const std::string& scene = "tripod",
 
 // Exports the project's sharp frames as 32-bit EXR under `c.dir / sub` and reads them back.
 std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub);
+
+// Sets (or, with nullopt, removes: the default applies) a tuning setting in the project's
+// project.json, as `fit --set` keeps it; settings that act on the output apply at export.
+void set_project_setting(const fs::path& project, const std::string& name,
+                         std::optional<double> value);
 
 // A tiny two-layer FitData (4 frames of 40x24 random colour, radius 1 px, a static camera, a
 // 10x8 subject mask at (12, 8)); no flow unless `with_flow` (zero flow, all consistent).

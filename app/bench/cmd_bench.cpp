@@ -203,7 +203,10 @@ const Bench kBenches[] = {
      "             [--csv FILE] [--seed S] [--batch N] [--set name=value]...\n"
      "             every clip of a corpus split fitted as bench fit does: one table of input\n"
      "             and output PSNR/SSIM/tPSNR, worst frame, PSNR inside/outside the mask\n"
-     "             (CSV default: <dir>/bench_<split>_<preset>.csv)"},
+     "             (CSV default: <dir>/bench_<split>_<preset>.csv)\n"
+     "       corpus <dir> --views [--split S] [--csv FILE]\n"
+     "             no fit: each rendered clip's sharpest-view bound (every pixel from the frame\n"
+     "             that saw it sharpest, by the true depth, cameras and radius)"},
     {"motion", bench_motion,
      "motion --clip <synth-dir> [--pairs] [--dump <dir>]\n"
      "             camera motion (prepare's homographies) against the clip's true wall motion"},

@@ -1,9 +1,10 @@
 #pragma once
 // Never worse than the shot (docs/method.md, Confidence and fallback). The output of frame t is
-//     S_t = w_t · C_t + (1 − w_t) · I_t,      w_t = κ_t · τ_t · ν_t (· γ_t, fit.sharper_view_px)
+//     S_t = w_t · C_t + (1 − w_t) · I_t,      w_t = κ_t · τ_t · ν_t · γ_t
 // with C_t the model's sharp frame, I_t the input, κ_t the confidence that the model explains
-// the region (agreement of the frames that see it through the shared atlas) and ν_t the need: 0
-// where no blur reaches the pixel (nothing to fix, the shot is already the answer).
+// the region (agreement of the frames that see it through the shared atlas), τ_t the trust that
+// some frame recorded its detail, ν_t the need (0 where no blur reaches the pixel: nothing to
+// fix, the shot is already the answer) and γ_t whether another frame saw it sharper.
 #include <torch/types.h>
 
 #include <functional>

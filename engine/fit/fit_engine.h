@@ -60,8 +60,8 @@ struct FitOptions {
     // Sharper view (confidence.h, sharper_view): the model replaces frame t's pixel only where
     // some frame saw it sharper than frame t did, by more than this (px), fully from twice
     // that: where frame t is its own sharpest view, the atlas has no detail the shot lacks and
-    // only deconvolution could add any (0: off).
-    double sharper_view_px = 0.0;
+    // only deconvolution could add any (0: off; the dev half of the corpus chose 2 px).
+    double sharper_view_px = 2.0;
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;
