@@ -443,9 +443,10 @@ void print_views(const fs::path& dir, const std::string& split,
         name_w, "mean", split.c_str(), mean[0], mean[1], mean[2], mean[2] - mean[0], mean[3],
         mean[5], mean[5] - mean[0], mean[6], mean[1], mean[4], mean[7], mean[8]);
     std::printf(
-        "least: each pixel from the view with the least true radius; near: the mean of the views "
-        "within 0.5 px of it; worst: the lowest frame's gain; tPSNR: in, least, near; sharper: "
-        "pixels some other frame saw at least 1 px sharper\n");
+        "least: each pixel from the view with the least true radius, where it is over 0.5 px "
+        "sharper than the frame's own; near: the mean of the views within 0.5 px of that one; "
+        "worst: the lowest frame's gain; tPSNR: in, least, near; sharper: pixels some other "
+        "frame saw at least 1 px sharper\n");
     write_file_atomic(csv_path, csv);
     std::printf("CSV: %s\n", csv_path.c_str());
 }

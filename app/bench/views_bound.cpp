@@ -132,14 +132,17 @@ ViewsBound sharpest_view_bound(const std::filesystem::path& dir) {
                     if (has_alpha && alpha[s].at(ui, vi, 0) >= 0.5f) continue;
                     views.push_back({coc[s].at(ui, vi, 0), u, v, s});
                 }
+                // Another view replaces the frame's own only where it is sharper by more than
+                // the 0.5 px that resampling it into frame t can cost.
                 const View* best = &views[0];
                 for (const View& w : views)
-                    if (w.radius < best->radius) best = &w;
+                    if (w.radius < std::min(best->radius, views[0].radius - 0.5)) best = &w;
                 if (best->radius < views[0].radius - 1.0) ++sharper;
                 double sum[3] = {0, 0, 0};
                 int n = 0;
                 for (const View& w : views) {
-                    if (w.radius > best->radius + 0.5) continue;
+                    if (w.radius > best->radius + 0.5 || (best == &views[0] && &w != best))
+                        continue;
                     for (int c = 0; c < 3; ++c) sum[c] += bilinear(input[w.s], w.x, w.y, c);
                     ++n;
                 }

@@ -10,8 +10,9 @@ namespace refocus {
 
 struct ViewsBound {
     double in_psnr = 0, in_tpsnr = 0;  // the input against the truth (mean over frames)
-    // "least": the view with the least radius; "near": the mean of the views within 0.5 px of
-    // the least (noise averaged over the views that are nearly as sharp).
+    // "least": the view with the least radius where it is more than 0.5 px sharper than the
+    // frame's own (else the frame's own); "near": the mean of the views within 0.5 px of that
+    // one (noise averaged over the views nearly as sharp), the frame's own where it was kept.
     double least_psnr = 0, least_tpsnr = 0, least_worst = 0;  // worst: the lowest frame gain
     double near_psnr = 0, near_tpsnr = 0, near_worst = 0;
     double sharper_share = 0;  // pixels some other frame saw at least 1 px sharper

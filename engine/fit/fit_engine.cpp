@@ -487,6 +487,13 @@ torch::Tensor FitEngine::confidence(int t) const {
     return tau.defined() ? k * tau : k;
 }
 
+torch::Tensor FitEngine::sharper_view_map(int t) const {
+    if (!(m_opts.sharper_view_px > 0) || t < 0 || t >= m_data->frames) return {};
+    auto best = sharpest_seen_map(t);
+    if (!best.defined()) return {};
+    return sharper_view(blur_reach(m_data->radius[t]), best, m_opts.sharper_view_px);
+}
+
 torch::Tensor FitEngine::model_weight(int t) const {
     if (t < 0 || t >= m_data->frames) return {};
     auto w = confidence(t);

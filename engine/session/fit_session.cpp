@@ -147,8 +147,9 @@ std::string FallbackShare::summary() const {
         n += std::snprintf(buf + n, sizeof buf - n, " (most in frame %d: %.1f%%)", worst_frame,
                            100 * worst_share);
     std::snprintf(buf + n, sizeof buf - n,
-                  ", on %.1f%% that no frame saw sharp, and on %.1f%% where nothing is blurred",
-                  100 * unseen / frames, 100 * in_focus / frames);
+                  ", on %.1f%% that no frame saw sharp, on %.1f%% that no other frame saw sharper,"
+                  " and on %.1f%% where nothing is blurred",
+                  100 * unseen / frames, 100 * not_sharper / frames, 100 * in_focus / frames);
     return buf;
 }
 
@@ -164,11 +165,20 @@ void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
         tau.defined()
             ? ((f.defined() ? 1.0 - f : torch::ones_like(tau)) * (1.0 - tau)).mean().item<double>()
             : 0.0;
-    // The rest of the shot's share: in focus (w = (1 − f)·τ·need).
+    // Explained and seen sharp, but no other frame saw it sharper: (1 − f)·τ·(1 − γ).
+    const auto g = engine.sharper_view_map(t);
+    double not_sharper = 0;
+    if (g.defined()) {
+        auto kept = f.defined() ? 1.0 - f : torch::ones_like(g);
+        if (tau.defined()) kept = kept * tau;
+        not_sharper = (kept * (1.0 - g)).mean().item<double>();
+    }
+    // The rest of the shot's share: in focus (w = (1 − f)·τ·γ·need).
     const double shot = w.defined() ? (1.0 - w).mean().item<double>() : 0.0;
     s.unexplained += u;
     s.unseen += unseen;
-    s.in_focus += std::max(0.0, shot - u - unseen);
+    s.not_sharper += not_sharper;
+    s.in_focus += std::max(0.0, shot - u - unseen - not_sharper);
     if (u > s.worst_share) s.worst_share = u, s.worst_frame = t;
     ++s.frames;
 }

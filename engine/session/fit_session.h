@@ -40,9 +40,11 @@ struct FocusTrack;  // edit/focus.h
 // Where an export's plate is the shot rather than the fit (fit/confidence.h), as shares of the
 // exported frames' pixels: `unexplained`, the fit cannot explain the region (it falls back);
 // `unseen`, no frame saw it sharp (fit.trust_seen_px: its detail would be deconvolution alone);
-// `in_focus`, nothing is blurred there (the shot needs nothing). All weighted by how much.
+// `not_sharper`, no other frame saw it sharper (fit.sharper_view_px: the atlas holds no detail
+// the shot lacks); `in_focus`, nothing is blurred there (the shot needs nothing). All weighted by
+// how much.
 struct FallbackShare {
-    double unexplained = 0, unseen = 0, in_focus = 0;
+    double unexplained = 0, unseen = 0, not_sharper = 0, in_focus = 0;
     int frames = 0;
     int worst_frame = -1;         // the frame with the largest unexplained share
     double worst_share = 0;       // ... and that share
