@@ -19,6 +19,7 @@
 #include "metrics/metrics.h"
 #include "bench/views_bound.h"
 #include "util/error.h"
+#include "util/json_file.h"
 
 namespace refocus {
 
@@ -67,12 +68,7 @@ std::vector<CorpusClip> list_clips(const fs::path& dir, const std::string& split
     std::map<std::string, int> per_split;
     for (const fs::path& f : folders) {
         const std::string json_path = (f / "clip.json").string();
-        nlohmann::json j;
-        try {
-            j = nlohmann::json::parse(read_text_file(json_path));
-        } catch (const nlohmann::json::exception& e) {
-            throw Error(file_error(json_path, std::string("not valid JSON: ") + e.what()));
-        }
+        const nlohmann::json j = read_json_file(json_path);
         CorpusClip c;
         c.dir = f;
         c.name = j.contains("name") && j["name"].is_string() ? j["name"].get<std::string>()

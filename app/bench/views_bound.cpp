@@ -13,6 +13,7 @@
 #include "metrics/metrics.h"
 #include "util/error.h"
 #include "util/fs.h"
+#include "util/json_file.h"
 
 namespace refocus {
 
@@ -66,12 +67,7 @@ std::vector<Image> read_pass(const std::filesystem::path& dir, const char* pass,
 
 ViewsBound sharpest_view_bound(const std::filesystem::path& dir) {
     const std::string json_path = (dir / "clip.json").string();
-    nlohmann::json j;
-    try {
-        j = nlohmann::json::parse(read_text_file(json_path));
-    } catch (const nlohmann::json::exception& e) {
-        throw Error(file_error(json_path, std::string("not valid JSON: ") + e.what()));
-    }
+    const nlohmann::json j = read_json_file(json_path);
     if (!j.contains("camera_world") || !j.contains("lens") || !j["lens"].contains("focal_px"))
         throw Error(file_error(json_path, "no camera_world or lens.focal_px (a rendered clip's)"));
     const std::vector<Image> input = read_pass(dir, "input", "png", 0);
