@@ -487,21 +487,19 @@ torch::Tensor FitEngine::confidence(int t) const {
     return tau.defined() ? k * tau : k;
 }
 
-torch::Tensor FitEngine::sharper_view_map(int t) const {
-    if (!(m_opts.sharper_view_px > 0) || t < 0 || t >= m_data->frames) return {};
-    auto best = sharpest_seen_map(t);
-    if (!best.defined()) return {};
-    return sharper_view(blur_reach(m_data->radius[t]), best, m_opts.sharper_view_px);
-}
-
-torch::Tensor FitEngine::model_weight(int t) const {
+torch::Tensor FitEngine::model_weight(int t, torch::Tensor* gamma) const {
+    if (gamma) *gamma = torch::Tensor();
     if (t < 0 || t >= m_data->frames) return {};
     auto w = confidence(t);
     auto best = m_opts.sharper_view_px > 0 ? sharpest_seen_map(t) : torch::Tensor();
     if (m_opts.keep_focus_px > 0 || best.defined()) {
         const auto reach = blur_reach(m_data->radius[t]);  // ν and γ share the dilation
         if (m_opts.keep_focus_px > 0) w = w * blur_need(reach, m_opts.keep_focus_px);
-        if (best.defined()) w = w * sharper_view(reach, best, m_opts.sharper_view_px);
+        if (best.defined()) {
+            auto g = sharper_view(reach, best, m_opts.sharper_view_px);
+            w = w * g;
+            if (gamma) *gamma = g;
+        }
     }
     if (!(w < 1 - 1e-3).any().item<bool>()) return {};
     return w;

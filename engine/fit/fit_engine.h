@@ -142,12 +142,11 @@ class FitEngine {
     torch::Tensor seen_trust_map(int t) const;
     // The least radius any frame saw frame t's pixels at (confidence.h, sharpest_seen), cached.
     torch::Tensor sharpest_seen_map(int t) const;
-    // γ_t (confidence.h, sharper_view): 1 where another frame saw the pixel sharper than frame
-    // t did; undefined when fit.sharper_view_px is off.
-    torch::Tensor sharper_view_map(int t) const;
     // The model's share of the output: confidence(t) times the need (0 where no blur reaches
-    // the pixel, fit.keep_focus_px) and γ_t. [1,1,H,W], undefined when it is 1 everywhere.
-    torch::Tensor model_weight(int t) const;
+    // the pixel, fit.keep_focus_px) and γ_t (confidence.h, sharper_view: 1 where another frame
+    // saw the pixel sharper). [1,1,H,W], undefined when it is 1 everywhere. `gamma`, when given,
+    // receives γ_t (undefined when fit.sharper_view_px is off), from the same dilation.
+    torch::Tensor model_weight(int t, torch::Tensor* gamma = nullptr) const;
     // L's sharp frame and layers (frame t, batch of one) blended with the input by
     // model_weight(t). When atlas edits were drawn into L, `model` is L before them: the
     // fallback blends that, and the edits stay on top (paint on the atlas shows in every frame,

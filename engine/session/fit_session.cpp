@@ -157,7 +157,8 @@ namespace {
 // Adds frame t to `s` (see FallbackShare).
 void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
     auto f = engine.fallback_weight(t);
-    auto w = engine.model_weight(t);
+    torch::Tensor g;  // γ_t, from model_weight's own dilation
+    auto w = engine.model_weight(t, &g);
     auto tau = engine.seen_trust_map(t);
     const double u = f.defined() ? f.mean().item<double>() : 0.0;
     // Explained but seen sharp by no frame: (1 − f)·(1 − τ).
@@ -166,7 +167,6 @@ void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
             ? ((f.defined() ? 1.0 - f : torch::ones_like(tau)) * (1.0 - tau)).mean().item<double>()
             : 0.0;
     // Explained and seen sharp, but no other frame saw it sharper: (1 − f)·τ·(1 − γ).
-    const auto g = engine.sharper_view_map(t);
     double not_sharper = 0;
     if (g.defined()) {
         auto kept = f.defined() ? 1.0 - f : torch::ones_like(g);
