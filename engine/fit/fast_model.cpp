@@ -188,7 +188,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
             if (!line.empty()) notes.push_back(line);
         }
     }
-    update_tv_weights();
+    m_tv_stale = true;  // made by the first priors() (update_tv_weights)
 }
 
 int FastModel::preferred_batch() const {
@@ -589,6 +589,10 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
 
 torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>& frames,
                                 int64_t step, LossTerms& terms) {
+    if (m_tv_stale) {
+        update_tv_weights();
+        m_tv_stale = false;
+    }
     auto bg = m_composed_bg.defined() ? m_composed_bg : compose(m_bg);
     // A layer with a deblurring path takes deblur_tv times the TV: its detail is what TV flattens.
     auto tv_factor = [&](const Atlas& a) { return a.deblur.defined() ? m_opts.deblur_tv : 1.0; };
@@ -699,7 +703,7 @@ void FastModel::load_state(const std::map<std::string, torch::Tensor>& in) {
         }
     }
     FitModel::load_state(s);  // the parameters may be new tensors: the engine remakes its optimiser
-    update_tv_weights();
+    m_tv_stale = true;        // over the adopted geometry, at the next priors()
 }
 
 torch::Tensor FastModel::geometry(const Atlas& a) {

@@ -150,6 +150,9 @@ class FastModel : public FitModel {
     torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight, const torch::Tensor& what = {},
                        bool with_warp = false) const;
     void update_tv_weights();  // each atlas's tv_weight, from the data and its geometry
+    // The TV weights wait for the first priors(): a fused pass over every frame that an export
+    // or a reopened project (renders only) never needs, and a resumed fit makes once.
+    bool m_tv_stale = true;
     torch::Tensor tv_weight_map(const Atlas& a, const torch::Tensor& radius,
                                 const torch::Tensor& weight, const torch::Tensor& views,
                                 double fade) const;
