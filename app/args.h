@@ -21,14 +21,17 @@ class Args {
                     add(key.substr(0, eq), key.substr(eq + 1));
                 } else if (flags.count(key)) {
                     add(key, "1");
+                } else if (i + 1 >= argc) {
+                    m_missing = "--" + key;  // reported by check_known, after unknown options
+                    m_opts[key] = "";
                 } else {
-                    if (i + 1 >= argc)
-                        throw std::runtime_error("option --" + key + " needs a value");
                     add(key, argv[++i]);
                 }
             } else if (a == "-o") {
-                if (i + 1 >= argc) throw std::runtime_error("option -o needs a value");
-                m_opts["out"] = argv[++i];
+                if (i + 1 >= argc)
+                    m_missing = "-o";
+                else
+                    add("out", argv[++i]);
             } else {
                 m_pos.push_back(a);
             }
@@ -66,6 +69,10 @@ class Args {
     void check_known(const std::set<std::string>& known) const {
         for (const auto& [k, v] : m_opts)
             if (!known.count(k)) throw std::runtime_error("unknown option --" + k);
+        if (!m_missing.empty()) throw std::runtime_error("option " + m_missing + " needs a value");
+        auto out = m_opts.find("out");
+        if (out != m_opts.end() && out->second.empty())
+            throw std::runtime_error("option -o/--out needs a path (got an empty one)");
     }
 
   private:
@@ -74,6 +81,7 @@ class Args {
         m_all[k].push_back(v);
     }
     std::vector<std::string> m_pos;
+    std::string m_missing;  // the last option, given without its value
     std::map<std::string, std::string> m_opts;
     std::map<std::string, std::vector<std::string>> m_all;
 };

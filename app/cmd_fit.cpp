@@ -77,6 +77,7 @@ int cmd_fit(int argc, char** argv) {
     use_settings(s, settings);
     s.fit.preset = a.get("preset", s.fit.preset);
     find_preset(s.fit.preset);
+    // Each flag is checked against the bound the loader applies to what it stores (project.h).
     if (a.has("minutes") || a.has("iters")) {
         s.fit.minutes = a.has("minutes") ? checked_range("--minutes", a.get_double("minutes", 0), 0,
                                                          kMaxFitMinutes, true)
@@ -86,10 +87,9 @@ int cmd_fit(int argc, char** argv) {
     }
     if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.minutes = 5.0;
     if (s.fit.minutes < 0 || s.fit.iters < 0) throw Error("--minutes and --iters must be positive");
-    s.fit.seed = static_cast<uint64_t>(a.get_int("seed", static_cast<int>(s.fit.seed)));
-    if (a.has("batch"))
-        s.fit.batch = checked_batch_arg(
-            a.get_int("batch", 0));  // frames per step; left out: the model's choice
+    if (a.has("seed")) s.fit.seed = static_cast<uint64_t>(checked_fit_flag("seed", a.get("seed")));
+    if (a.has("batch"))  // frames per step; left out: the model's choice
+        s.fit.batch = checked_batch_arg(checked_fit_flag("batch", a.get("batch")));
     if (a.has("checkpoint-seconds"))
         s.fit.checkpoint_seconds =
             checked_range("--checkpoint-seconds", a.get_double("checkpoint-seconds", 60.0), 0, 1e6);
@@ -118,7 +118,9 @@ int cmd_fit(int argc, char** argv) {
             stderr,
             "note: starting over (the previous fit is replaced; use --resume to continue it)\n");
     }
-    write_fit_settings(project, s, nullptr);
+    // The settings reach project.json with the first checkpoint (they say how to resume it):
+    // a fit that fails before one (a full disk) leaves project.json as it was.
+    bool settings_written = false;
 
     std::signal(SIGINT, [](int) { g_interrupted = 1; });
     std::signal(SIGTERM, [](int) { g_interrupted = 1; });
@@ -131,7 +133,10 @@ int cmd_fit(int argc, char** argv) {
         engine.step();
         if (g_interrupted) engine.request_stop();
         bar.update(engine.snapshot());
-        engine.maybe_checkpoint(dir);
+        if (engine.maybe_checkpoint(dir) && !settings_written) {
+            write_fit_settings(project, s, nullptr);
+            settings_written = true;
+        }
     }
     engine.save_checkpoint(dir);
     FitSnapshot snap = engine.snapshot();
@@ -152,12 +157,18 @@ int cmd_export(int argc, char** argv) {
             "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|all "
             "[--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>");
     Project project = Project::load(a.positional()[0]);
+    const std::string what = a.get("what", "sharp");
+    const std::string out = a.get("out");
+    if (what == "all" && (fs::path(out).extension() == ".mp4" || fs::is_regular_file(out)))
+        throw Error(file_error(out,
+                               "--what all writes a folder (one sequence or mp4 per pass): "
+                               "give --out a folder"));
+    if (what != "all") parse_export_pass(what);  // an unknown pass is refused before the work
+    check_export_target(project, out);           // before the (slow) opening of the fit
     PrepareLog log;
     auto engine = open_fitted(project, log);
     const ProjectEdits edits = ProjectEdits::load(project);  // atlas edits follow every frame
     if (edits.has_edits()) std::fprintf(stderr, "applying the project's atlas edits\n");
-    const std::string what = a.get("what", "sharp");
-    const std::string out = a.get("out");
     std::vector<ExportPass> passes;
     if (what == "all") {
         passes = {ExportPass::Sharp,   ExportPass::Reblur, ExportPass::Atlas,

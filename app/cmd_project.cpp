@@ -7,6 +7,7 @@
 #include "args.h"
 #include "commands.h"
 #include "progress.h"
+#include "fit/fit_engine.h"
 #include "io/clip.h"
 #include "project/project.h"
 #include "util/error.h"
@@ -31,6 +32,7 @@ void print_progress(StageProgress& p, int i, int n) {
 ClipReadOptions read_options(const Args& a) {
     ClipReadOptions o;
     o.default_fps = checked_range("--fps", a.get_double("fps", 24.0), 0.0, 1000.0, true);
+    o.fps_override = a.has("fps");  // a video's own rate too: a user who says --fps means it
     std::string nf = a.get("nonfinite", "reject");
     if (nf == "reject")
         o.nonfinite = NonFinitePolicy::Reject;
@@ -54,6 +56,8 @@ int cmd_new(int argc, char** argv) {
     StageProgress progress("ingest");
     Project p = create_project(clip, a.get("out"), read_options(a),
                                [&](int i, int n) { print_progress(progress, i, n); });
+    if (a.has("fps") && !is_project_path(clip) && is_video_path(clip))
+        std::fprintf(stderr, "note: --fps %g replaces the video's own frame rate\n", p.fps);
     std::printf("created project %s: %dx%d, %d frames at %.3f fps from %s\n",
                 p.project_file().string().c_str(), p.width, p.height, p.frames, p.fps,
                 clip.c_str());
@@ -79,8 +83,26 @@ int cmd_info(int argc, char** argv) {
         if (p.sections.empty()) {
             std::printf("holds:    frames only (not fitted yet)\n");
         } else {
-            for (auto it = p.sections.begin(); it != p.sections.end(); ++it)
-                std::printf("holds:    %s\n", it.key().c_str());
+            for (auto it = p.sections.begin(); it != p.sections.end(); ++it) {
+                if (it.key() != "fit") {
+                    std::printf("holds:    %s\n", it.key().c_str());
+                    continue;
+                }
+                // A fit is what fit --resume, export and the studio can load: say so only then.
+                const fs::path dir = p.dir / "fit";
+                if (!FitEngine::has_checkpoint(dir)) {
+                    std::printf("holds:    fit settings (no checkpoint yet)\n");
+                    continue;
+                }
+                const std::string why = FitEngine::checkpoint_problem(dir, p.frames);
+                if (why.empty())
+                    std::printf("holds:    fit\n");
+                else
+                    std::printf(
+                        "holds:    fit settings; the checkpoint cannot be used (%s): run "
+                        "refocus fit %s to fit again\n",
+                        why.c_str(), p.dir.string().c_str());
+            }
         }
         return 0;
     }
@@ -94,6 +116,7 @@ int cmd_info(int argc, char** argv) {
                 i.kind == "sequence" ? " (sequence: --fps sets it)" : "");
     std::printf("source:   %d channel(s), %s, %s\n", i.source_channels, i.source_format.c_str(),
                 i.source_linear ? "linear" : "sRGB-encoded");
+    if (!i.note.empty()) std::printf("note:     %s\n", i.note.c_str());
     return 0;
 }
 

@@ -109,6 +109,12 @@ int main(int argc, char** argv) {
     }
     for (const auto& c : kCommands) {
         if (std::strcmp(argv[1], c.name) != 0) continue;
+        // Every command answers --help (a value of an option never is "--help").
+        for (int i = 2; i < argc; ++i)
+            if (!std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h")) {
+                std::printf("usage: refocus %s\n\n  %s\n", c.usage, c.help);
+                return 0;
+            }
         try {
             if (!debug.empty()) refocus::set_debug(debug);
             refocus::init_threads();

@@ -107,6 +107,10 @@ std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub) {
     return read_all_frames((out / "sharp_%04d.exr").string());
 }
 
+void strip_checksums(nlohmann::json& j) {
+    for (const char* key : {"checksum", "tensors_checksum", "checksums"}) j.erase(key);
+}
+
 void set_project_setting(const fs::path& project, const std::string& name,
                          std::optional<double> value) {
     const fs::path path = project / "project.json";

@@ -1,5 +1,7 @@
 #pragma once
 // Shared helpers for the test suites: scratch folders, running the CLI, small test images.
+#include <nlohmann/json.hpp>
+
 #include <memory>
 #include <optional>
 #include <string>
@@ -52,6 +54,10 @@ std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub);
 // project.json, as `fit --set` keeps it; settings that act on the output apply at export.
 void set_project_setting(const fs::path& project, const std::string& name,
                          std::optional<double> value);
+
+// A checkpoint.json as builds before checksums wrote it: for tests that edit one by hand to stand
+// for an earlier build's (an edited file that keeps them is refused as damaged).
+void strip_checksums(nlohmann::json& checkpoint);
 
 // A tiny two-layer FitData (4 frames of 40x24 random colour, radius 1 px, a static camera, a
 // 10x8 subject mask at (12, 8)); no flow unless `with_flow` (zero flow, all consistent).

@@ -57,6 +57,7 @@ std::string run_export(FitEngine& engine, const ExportJob& job, FitWorker& w) {
             target = (fs::path(job.out) / (job.passes[i] + ".mp4")).string();
         else if (pass != ExportPass::Atlas)
             target = (fs::path(job.out) / job.passes[i]).string();
+        if (job.project) check_export_target(*job.project, target);  // before any folder is made
         fs::create_directories(
             fs::path(fmt == "mp4" ? fs::path(target).parent_path() : fs::path(target)));
         ExportOptions eo;

@@ -3,6 +3,8 @@
 // studio_script.cpp.
 #include "studio.h"
 
+#include "key_taps.h"
+
 #include <GLFW/glfw3.h>
 #include <GL/gl.h>
 #include <imgui.h>
@@ -286,10 +288,12 @@ void Studio::step_to_key(int dir) {
 // keyframe, I/O for the in and out points, Alt+X clears them.
 void Studio::handle_transport_keys() {
     const ImGuiIO& io = ImGui::GetIO();
-    if (ImGui::IsKeyPressed(GLFW_KEY_SPACE, false)) toggle_playback(m_timeline);
-    if (ImGui::IsKeyPressed(GLFW_KEY_L, false)) shuttle(m_timeline, 1);
-    if (ImGui::IsKeyPressed(GLFW_KEY_J, false)) shuttle(m_timeline, -1);
-    if (ImGui::IsKeyPressed(GLFW_KEY_K, false)) shuttle(m_timeline, 0);
+    // A tap between two frames counts too (key_taps.h); a press both see is one press.
+    auto pressed = [](int key) { return ImGui::IsKeyPressed(key, false) || key_tapped(key); };
+    if (pressed(GLFW_KEY_SPACE)) toggle_playback(m_timeline);
+    if (pressed(GLFW_KEY_L)) shuttle(m_timeline, 1);
+    if (pressed(GLFW_KEY_J)) shuttle(m_timeline, -1);
+    if (pressed(GLFW_KEY_K)) shuttle(m_timeline, 0);
     if (ImGui::IsKeyPressed(GLFW_KEY_LEFT)) set_frame(m_ctx.frame - 1);
     if (ImGui::IsKeyPressed(GLFW_KEY_RIGHT)) set_frame(m_ctx.frame + 1);
     if (ImGui::IsKeyPressed(GLFW_KEY_HOME, false)) set_frame(m_ctx.first_frame());
@@ -350,6 +354,7 @@ void Studio::frame() {
     drag_splitters(m_ctx.layout);
     draw_modals();
     autosave();
+    clear_key_taps();
 }
 
 // The autosave's files are written on a thread of their own (an edit layer of a 4K atlas is
@@ -398,8 +403,11 @@ int run_studio(const StudioOptions& opts) {
     IMGUI_CHECKVERSION();
     ImGui::CreateContext();
     ImGui::GetIO().IniFilename = nullptr;
+    // Space is the transport's, never a widget's "activate" (keyboard navigation stays off).
+    ImGui::GetIO().ConfigFlags &= ~ImGuiConfigFlags_NavEnableKeyboard;
     ImGui::StyleColorsDark();
     ImGui_ImplGlfw_InitForOpenGL(window, true);
+    install_key_taps(window);  // after ImGui's callbacks, which it chains to
     ImGui_ImplOpenGL3_Init("#version 330 core");
 
     int code = 0;

@@ -2,6 +2,7 @@
 #include "bench_eval.h"
 
 #include "fit/settings.h"
+#include "project/project.h"
 
 #include "io/tensor_image.h"
 #include "metrics/metrics.h"
@@ -55,10 +56,9 @@ FitSettings bench_fit_settings(const Args& a, const std::string& preset, double 
     s.fit.preset = preset;
     s.fit.minutes = minutes;
     s.fit.iters = a.get_int("iters", 0);
-    s.fit.seed = static_cast<uint64_t>(a.get_int("seed", 1));
-    if (a.has("batch"))
-        s.fit.batch = checked_batch_arg(
-            a.get_int("batch", 0));  // frames per step; left out: the model's choice
+    s.fit.seed = a.has("seed") ? static_cast<uint64_t>(checked_fit_flag("seed", a.get("seed"))) : 1;
+    if (a.has("batch"))  // frames per step; left out: the model's choice
+        s.fit.batch = checked_batch_arg(checked_fit_flag("batch", a.get("batch")));
     return s;
 }
 

@@ -297,7 +297,9 @@ void AtlasEditor::end_stroke() {
 // ---------------------------------------------------------------- files
 int64_t AtlasEditor::import_image(const std::string& path) {
     if (m_base.empty()) throw Error(file_error(path, "no fitted atlas to import over"));
-    ImageReadResult r = read_image_file(path);
+    ImageReadResult r =
+        read_image_file(path, true, NonFinitePolicy::Reject, -1,
+                        "save the repainted atlas again without NaN/Inf or extreme values");
     const Image img = to_rgb(r.image);
     if (img.width != m_base.width || img.height != m_base.height)
         throw Error(file_error(path, "the image is " + std::to_string(img.width) + "x" +

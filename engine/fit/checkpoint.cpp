@@ -5,12 +5,18 @@
 
 #include <nlohmann/json.hpp>
 
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <random>
 #include <sstream>
 
 #include "fit/fit_engine.h"
+#include "util/checksum.h"
 #include "util/error.h"
 #include "util/json_file.h"
 #include "util/validate.h"
@@ -106,7 +112,75 @@ void validate_checkpoint(const json& j, const fs::path& file, int64_t frames) {
             if (!v.is_number()) json_field_error(corrupt, "terms." + k, "must be a number");
 }
 
+// The checksum of a tensor's values (its bytes as stored, contiguous, on the CPU).
+std::string tensor_checksum(const torch::Tensor& t) {
+    const torch::Tensor c = t.detach().cpu().contiguous();
+    return checksum_hex(checksum64(c.data_ptr(), c.numel() * c.element_size()));
+}
+
+// The checksum of checkpoint.json's own fields ("checksum" left out).
+std::string json_checksum(json j) {
+    j.erase("checksum");
+    const std::string text = j.dump();
+    return checksum_hex(checksum64(text.data(), text.size()));
+}
+
+// Writes the archive through a sink that never throws inside LibTorch (an exception there, on a
+// full disk, reached the archive writer's destructor and aborted the process): the first write
+// error is kept, the rest of the archive is dropped, and the caller reports it.
+void save_archive(torch::serialize::OutputArchive& ar, const fs::path& tmp, const fs::path& pt) {
+    const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd < 0)
+        throw Error(file_error(pt.string(),
+                               std::string("cannot write checkpoint: ") + std::strerror(errno)));
+    int err = 0;
+    ar.save_to([&](const void* data, size_t n) -> size_t {
+        const auto* p = static_cast<const char*>(data);
+        for (size_t done = 0; done < n && err == 0;) {
+            const ssize_t w = ::write(fd, p + done, n - done);
+            if (w < 0 && errno == EINTR) continue;
+            if (w <= 0)
+                err = w < 0 ? errno : ENOSPC;
+            else
+                done += size_t(w);
+        }
+        return n;
+    });
+    if (err == 0 && ::fsync(fd) != 0) err = errno;
+    if (::close(fd) != 0 && err == 0) err = errno;
+    if (err != 0) {
+        ::unlink(tmp.c_str());
+        throw Error(file_error(pt.string(), std::string("cannot write checkpoint: ") +
+                                                std::strerror(err) +
+                                                " (the previous checkpoint is kept)"));
+    }
+}
+
 }  // namespace
+
+std::string FitEngine::checkpoint_json_checksum(const json& j) {
+    return json_checksum(j);
+}
+
+std::string FitEngine::checkpoint_problem(const fs::path& dir, int64_t frames) {
+    const fs::path jf = dir / "checkpoint.json";
+    try {
+        json j = read_json_file(jf);
+        const bool json_damaged =
+            j.is_object() && j.contains("checksum") && j["checksum"] != json_checksum(j);
+        migrate_checkpoint(j, jf);
+        validate_checkpoint(j, jf, frames);
+        if (json_damaged) return jf.string() + ": damaged checkpoint (its checksum does not match)";
+        const fs::path pt = dir / j["tensors"].get<std::string>();
+        if (!fs::exists(pt)) return pt.string() + ": the checkpoint's tensor file is missing";
+        if (j.contains("tensors_checksum") &&
+            j["tensors_checksum"] != checksum_hex(file_checksum64(pt)))
+            return pt.string() + ": damaged checkpoint tensors (the checksum does not match)";
+    } catch (const std::exception& e) {
+        return e.what();
+    }
+    return "";
+}
 
 bool FitEngine::has_checkpoint(const fs::path& dir) {
     return fs::exists(dir / "checkpoint.json");
@@ -116,6 +190,8 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
     fs::create_directories(dir);
     const std::string pt_name = "checkpoint_" + std::to_string(m_step) + ".pt";
     const fs::path pt = dir / pt_name;
+    json sums = json::object();  // per model tensor, checked on load
+    std::string tensors_sum;     // of the whole archive
     {
         std::lock_guard<std::mutex> lock(m_model_mutex);
         torch::serialize::OutputArchive ar;
@@ -126,15 +202,11 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
             m_optim->save(opt);
             ar.write("optimizer", opt);
         }
-        fs::path tmp = temp_sibling(pt);
-        try {
-            ar.save_to(tmp.string());
-        } catch (const std::exception& e) {
-            std::error_code ec;
-            fs::remove(tmp, ec);
-            throw Error(
-                file_error(pt.string(), std::string("cannot write checkpoint: ") + e.what()));
-        }
+        for (auto& [name, t] : m_model->state()) sums["model/" + name] = tensor_checksum(t);
+        remove_stale_temporaries(dir);  // a killed fit's half-written archive
+        const fs::path tmp = temp_sibling(pt);
+        save_archive(ar, tmp, pt);
+        tensors_sum = checksum_hex(file_checksum64(tmp));
         commit_temp(tmp, pt);
     }
     std::ostringstream rng;
@@ -160,7 +232,10 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
               {"rng", rng.str()},
               {"perm", m_perm},
               {"perm_pos", m_perm_pos},
-              {"tensors", pt_name}};
+              {"tensors", pt_name},
+              {"tensors_checksum", tensors_sum},
+              {"checksums", sums}};
+    j["checksum"] = json_checksum(j);
     write_file_atomic(dir / "checkpoint.json", j.dump(1));
     // checkpoint.json names only this step's tensor file: the others are removed.
     for (const auto& e : fs::directory_iterator(dir)) {
@@ -182,8 +257,16 @@ bool FitEngine::maybe_checkpoint(const fs::path& dir) {
 void FitEngine::load_checkpoint(const fs::path& dir) {
     const fs::path jf = dir / "checkpoint.json";
     json j = read_json_file(jf);  // depth bounded; errors name the file
+    // The checksum (of checkpoints written since they carry one) is checked after the fields,
+    // whose own messages say more.
+    const bool json_damaged =
+        j.is_object() && j.contains("checksum") && j["checksum"] != json_checksum(j);
     migrate_checkpoint(j, jf);
     validate_checkpoint(j, jf, m_data->frames);
+    if (json_damaged)
+        throw Error(file_error(jf.string(),
+                               "damaged checkpoint: its checksum does not match "
+                               "(edited or corrupted); fit again without --resume"));
     auto expect = [&](const char* key, const json& want) {
         if (!j.contains(key) || j[key] != want)
             throw Error(file_error(jf.string(), std::string("checkpoint field '") + key + "' is " +
@@ -198,11 +281,32 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     // kernel to set the data up with).
     expect("kernel", kernel_name(m_data->blur));
     const fs::path pt = dir / j.value("tensors", std::string());
+    if (!fs::exists(pt))
+        throw Error(file_error(pt.string(),
+                               "the checkpoint's tensor file is missing (deleted?); "
+                               "fit again without --resume"));
+    const bool damaged = j.contains("tensors_checksum") &&
+                         j["tensors_checksum"] != checksum_hex(file_checksum64(pt));
     torch::serialize::InputArchive ar;
     try {
         ar.load_from(pt.string());
     } catch (const std::exception& e) {
-        throw Error(file_error(pt.string(), "cannot read checkpoint tensors (truncated?)"));
+        throw Error(file_error(pt.string(), std::string("cannot read checkpoint tensors (") +
+                                                (damaged ? "damaged" : "truncated or corrupt") +
+                                                "); fit again without --resume"));
+    }
+    if (damaged) {  // name the tensors whose values changed, where the archive still reads
+        std::string which;
+        if (j.contains("checksums") && j["checksums"].is_object())
+            for (const auto& [name, sum] : j["checksums"].items()) {
+                torch::Tensor v;
+                if (ar.try_read(archive_name(j, name), v) && sum != tensor_checksum(v))
+                    which += (which.empty() ? " in " : ", ") + name;
+            }
+        throw Error(file_error(pt.string(),
+                               "damaged checkpoint tensors: the checksum does not "
+                               "match" +
+                                   which + "; fit again without --resume"));
     }
     std::lock_guard<std::mutex> lock(m_model_mutex);
     {

@@ -4,7 +4,9 @@
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 
 #include "fit/confidence.h"
@@ -21,6 +23,13 @@ namespace refocus {
 namespace F = torch::nn::functional;
 
 using Clock = std::chrono::steady_clock;
+
+namespace {
+// What a diverged fit leaves and what to do.
+const char* const kDivergedAdvice =
+    "; the fit stopped and the last checkpoint (fit/checkpoint.json) is kept: check the input for "
+    "extreme values, or fit again without --resume";
+}  // namespace
 
 int checked_batch_arg(int64_t n) {
     if (n < 1)
@@ -386,7 +395,18 @@ void FitEngine::step() {
         for (size_t i = 0; i < groups.size(); ++i)
             static_cast<torch::optim::AdamOptions&>(groups[i].options()).lr(m_base_lr[i] * factor);
 
-        const StepRender r = render_step(frames, crops);
+        StepRender r;
+        try {
+            r = render_step(frames, crops);
+        } catch (const Error&) {
+            // An update that left NaN/Inf in the state is refused by the blur's own check:
+            // said as what it is, a fit that diverged.
+            for (auto& [name, t] : m_model->state())
+                if (t.is_floating_point() && !torch::isfinite(t).all().item<bool>())
+                    throw Error("fit: diverging at step " + std::to_string(m_step) +
+                                ": the model's " + name + " holds NaN/Inf" + kDivergedAdvice);
+            throw;
+        }
         const torch::Tensor& rb = r.reblur;
         const torch::Tensor& target = r.target;
         auto fit_target = robust_target(rb, target, frames, r.scored);
@@ -394,8 +414,7 @@ void FitEngine::step() {
         auto ms = ms_ssim_loss(rb, fit_target);
         auto reco = (1.0 - m_opts.ms_ssim_share) * l1 + m_opts.ms_ssim_share * ms;
         auto loss = m_opts.w_reco * reco + m_model->priors(r.trained, frames, m_step, terms);
-        if (!torch::isfinite(loss).item<bool>())
-            throw Error("fit: the loss became NaN/Inf at step " + std::to_string(m_step));
+        check_divergence(loss.item<double>());  // before the update: the state stays the last good
         m_optim->zero_grad();
         loss.backward();
         m_optim->step();
@@ -421,6 +440,32 @@ void FitEngine::step() {
     m_snap.eta_s = frac > 0 ? m_elapsed * (1.0 - frac) / frac : -1.0;
     m_snap.atlas_version++;
     m_snap.status = done() ? (m_stop ? "stopped" : "done") : (m_paused ? "paused" : "running");
+}
+
+std::string loss_divergence(const std::deque<double>& recent, double loss) {
+    if (!std::isfinite(loss)) return "the loss became NaN/Inf";
+    constexpr size_t kMinSeen = 8;
+    constexpr double kGrowth = 100.0;
+    if (recent.size() < kMinSeen) return "";
+    std::vector<double> v(recent.begin(), recent.end());
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    const double median = v[v.size() / 2];
+    if (!(median > 0) || loss <= kGrowth * median) return "";
+    char b[160];
+    std::snprintf(b, sizeof b, "diverging: the loss is %.3g, %.0fx its running median %.3g", loss,
+                  loss / median, median);
+    return b;
+}
+
+void FitEngine::check_divergence(double loss) {
+    // A fit that diverges (a damaged state, absurd input) stops before its update: the caller
+    // saves nothing, and the last checkpoint stays the last good state.
+    const std::string why = loss_divergence(m_recent_loss, loss);
+    if (!why.empty())
+        throw Error("fit: " + why + " at step " + std::to_string(m_step) + kDivergedAdvice);
+    constexpr size_t kWindow = 31;
+    m_recent_loss.push_back(loss);
+    if (m_recent_loss.size() > kWindow) m_recent_loss.pop_front();
 }
 
 FitSnapshot FitEngine::snapshot() const {

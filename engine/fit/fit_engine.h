@@ -3,8 +3,11 @@
 // It minimises  Σ_t ‖L(C_t, r_t) − I_t‖ + priors  (docs/method.md, Objective; paper eq. 3 and 4)
 // over a FitModel, with a layered reblur: L(α·F) + (1 − L(α))·L(B), so that a blurred foreground
 // edge reveals the background the atlas holds behind it (docs/method.md, Layered reblur).
+#include <nlohmann/json.hpp>
+
 #include <atomic>
 #include <chrono>
+#include <deque>
 #include <memory>
 #include <mutex>
 #include <random>
@@ -80,6 +83,10 @@ struct FitOptions {
     Settings settings;
 };
 
+// Why a step's `loss` means the fit diverges: not finite, or over 100x the median of the
+// `recent` steps' (judged from 8 of them on); "" when it does not.
+std::string loss_divergence(const std::deque<double>& recent, double loss);
+
 // `--batch N` as typed: at least 1 (leaving it out lets the model choose, FitOptions::batch 0).
 int checked_batch_arg(int64_t n);
 
@@ -117,6 +124,11 @@ class FitEngine {
     // Checkpoints: `dir`/checkpoint.json + checkpoint_<step>.pt, written atomically; the json is
     // renamed last, so a kill at any moment leaves the previous checkpoint loadable.
     void save_checkpoint(const fs::path& dir);
+    // Why the checkpoint in `dir` cannot be loaded for a clip of `frames` frames (its JSON, its
+    // fields, its tensor file and checksums), without building a model; "" when it can.
+    static std::string checkpoint_problem(const fs::path& dir, int64_t frames);
+    // The checksum checkpoint.json carries of its other fields ("checksum").
+    static std::string checkpoint_json_checksum(const nlohmann::json& j);
     // Restores model, optimizer, step, elapsed time and sampling state. Throws if the checkpoint
     // belongs to another preset or clip shape.
     void load_checkpoint(const fs::path& dir);
@@ -179,6 +191,9 @@ class FitEngine {
     torch::Tensor reblur_crops(const Layers& L, const std::vector<int64_t>& frames,
                                const Crops& crops, const Windows& win) const;
     std::vector<int64_t> next_batch();
+    // Throws (the update not made) on a non-finite loss or one 100x its running median.
+    void check_divergence(double loss);
+    std::deque<double> m_recent_loss;  // the last steps' losses, for check_divergence
     // The model of the preset on the data (each layer's radius split first), its padded radius
     // maps and its optimiser; again when a checkpoint asks for another subject track or atlas
     // scale.

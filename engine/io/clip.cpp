@@ -42,6 +42,8 @@ class VideoReader : public ClipReader {
         m_info.kind = "video";
         m_info.fps = m_cap.get(cv::CAP_PROP_FPS);
         if (!(m_info.fps > 0.0) || !std::isfinite(m_info.fps)) m_info.fps = opts.default_fps;
+        m_info.stream_fps = m_info.fps;
+        if (opts.fps_override) m_info.fps = opts.default_fps;
         m_info.width = static_cast<int>(m_cap.get(cv::CAP_PROP_FRAME_WIDTH));
         m_info.height = static_cast<int>(m_cap.get(cv::CAP_PROP_FRAME_HEIGHT));
         m_info.source_channels = 3;
@@ -52,10 +54,18 @@ class VideoReader : public ClipReader {
         int n = 0;
         while (m_cap.grab()) ++n;
         if (n == 0) throw Error(file_error(path, "no decodable frames (empty or corrupt video)"));
-        if (header_frames > 0 && n + 1 < static_cast<int>(header_frames))
-            throw Error(file_error(path, "truncated: the header lists " +
-                                             std::to_string(static_cast<int>(header_frames)) +
-                                             " frames but only " + std::to_string(n) + " decode"));
+        if (header_frames > 0 && n + 1 < static_cast<int>(header_frames)) {
+            // MP4/MOV index every frame, so fewer is a cut file; Matroska, WebM and AVI give a
+            // count estimated from the duration, which a variable frame rate throws off.
+            const std::string ext = lower(fs::path(path).extension().string());
+            const std::string counts = std::to_string(static_cast<int>(header_frames)) +
+                                       " frames but " + std::to_string(n) + " decode";
+            if (ext == ".mp4" || ext == ".mov" || ext == ".m4v")
+                throw Error(file_error(path, "truncated: the header lists " + counts));
+            m_info.note = "the container's duration suggests " + counts +
+                          " (a variable frame rate, or a cut file): all " + std::to_string(n) +
+                          " decoded frames are used";
+        }
         m_info.frames = n;
         reopen();
     }
@@ -224,7 +234,7 @@ class SequenceReader : public ClipReader {
         if (index < 0 || index >= m_info.frames)
             throw Error(file_error(m_info.path, "frame index out of range", index));
         const std::string& f = m_info.files[index];
-        ImageReadResult r = read_image_file(f, true, m_opts.nonfinite, index);
+        ImageReadResult r = read_image_file(f, true, m_opts.nonfinite, index, kNonFiniteCleanHint);
         if (r.image.width != m_info.width || r.image.height != m_info.height)
             throw Error(file_error(f, "frame size differs from the first frame's", index));
         return to_rgb(r.image);
@@ -326,11 +336,13 @@ ClipWriter::ClipWriter(const std::string& target, const std::string& name, ClipF
         fs::path p(target);
         if (!p.parent_path().empty() && !fs::is_directory(p.parent_path()))
             throw Error(file_error(target, "folder does not exist"));
+        remove_stale_temporaries(p.parent_path());  // a killed export's partial mp4
     } else {
         std::error_code ec;
         fs::create_directories(target, ec);
         if (!fs::is_directory(target))
             throw Error(file_error(target, "cannot create output folder: " + ec.message()));
+        remove_stale_temporaries(target);  // a killed export's staging folder
     }
 }
 

@@ -19,15 +19,18 @@ struct ClipInfo {
     int height = 0;
     int frames = 0;
     double fps = 0.0;
+    double stream_fps = 0.0;         // a video's own rate (fps differs where --fps overrides it)
     int source_channels = 0;         // channels stored in the source
     std::string source_format;       // "uint8", "uint16", "half", "float"
     bool source_linear = false;      // true when the source stores linear light (EXR, float)
     std::vector<std::string> files;  // a sequence's frame files, in order
+    std::string note;                // what the reader assumed that the user should know
 };
 
 struct ClipReadOptions {
     NonFinitePolicy nonfinite = NonFinitePolicy::Reject;
     double default_fps = 24.0;  // image sequences carry no rate
+    bool fps_override = false;  // default_fps also replaces a video's own rate (new --fps)
 };
 
 // A video file by its extension. A file that exists is never read as a frame pattern,

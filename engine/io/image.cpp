@@ -50,15 +50,30 @@ size_t count_nonfinite(const Image& img, long* first) {
     return n;
 }
 
+size_t count_unusable(const Image& img, long* first) {
+    size_t n = 0;
+    if (first) *first = -1;
+    for (size_t i = 0; i < img.pixels.size(); ++i) {
+        const float v = img.pixels[i];
+        if (!(std::fabs(v) <= kMaxLinearValue)) {  // NaN fails the test too
+            if (n == 0 && first) *first = static_cast<long>(i);
+            ++n;
+        }
+    }
+    return n;
+}
+
 void clean_nonfinite(Image& img) {
     float maxv = 0.0f;
     for (float v : img.pixels)
-        if (std::isfinite(v)) maxv = std::max(maxv, v);
+        if (std::fabs(v) <= kMaxLinearValue) maxv = std::max(maxv, v);
     for (float& v : img.pixels) {
         if (std::isnan(v))
             v = 0.0f;
         else if (std::isinf(v))
             v = v > 0 ? maxv : 0.0f;
+        else
+            v = std::clamp(v, -kMaxLinearValue, kMaxLinearValue);
     }
 }
 

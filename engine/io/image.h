@@ -45,7 +45,13 @@ unsigned short linear_to_srgb16(float v);
 
 // Counts NaN/Inf values; `first` gets the index of the first one (or -1).
 size_t count_nonfinite(const Image& img, long* first = nullptr);
-// Replaces NaN with 0, +Inf with the largest finite value in the image, -Inf with 0.
+// No real light is this bright in linear values (1.0 is diffuse white): a finite value beyond it
+// is damage (1e30 in an EXR), treated as Inf is.
+constexpr float kMaxLinearValue = 1e4f;
+// Counts NaN/Inf and |x| > kMaxLinearValue; `first` as count_nonfinite's.
+size_t count_unusable(const Image& img, long* first = nullptr);
+// Replaces NaN and -Inf with 0, +Inf with the largest usable value in the image, and clamps the
+// rest to ±kMaxLinearValue.
 void clean_nonfinite(Image& img);
 
 // Converts 1/3/4 channels to 3 (grey replicated, alpha dropped).

@@ -29,8 +29,12 @@ std::string oiio_error(const std::string& fallback) {
 
 }  // namespace
 
+const char* const kNonFiniteCleanHint =
+    "use --nonfinite clean to replace NaN/-Inf with 0 and clamp +Inf and values beyond 1e4 to "
+    "1e4";
+
 ImageReadResult read_image_file(const std::string& path, bool decode_srgb,
-                                NonFinitePolicy nonfinite, int frame) {
+                                NonFinitePolicy nonfinite, int frame, const std::string& fix) {
     if (!fs::exists(path)) throw Error(file_error(path, "no such file", frame));
     // Alpha is dropped later, so colour must come as stored, not premultiplied by it.
     OIIO::ImageSpec config;
@@ -80,17 +84,17 @@ ImageReadResult read_image_file(const std::string& path, bool decode_srgb,
     }
 
     long first = -1;
-    size_t bad = count_nonfinite(r.image, &first);
+    size_t bad = count_unusable(r.image, &first);
     if (bad > 0) {
         if (nonfinite == NonFinitePolicy::Reject) {
             long px = first / nch;
             throw Error(file_error(path,
-                                   std::to_string(bad) + " NaN/Inf value(s), first at pixel (" +
+                                   std::to_string(bad) +
+                                       " NaN/Inf or out-of-range (|x| > 1e4) value(s), first at "
+                                       "pixel (" +
                                        std::to_string(px % spec.width) + ", " +
-                                       std::to_string(px / spec.width) +
-                                       "); rejected (use --nonfinite clean to replace NaN/-Inf "
-                                       "with 0 and +Inf with the "
-                                       "largest finite value)",
+                                       std::to_string(px / spec.width) + "); rejected (" +
+                                       (fix.empty() ? "fix or replace the file" : fix) + ")",
                                    frame));
         }
         clean_nonfinite(r.image);

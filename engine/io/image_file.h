@@ -16,11 +16,14 @@ struct ImageReadResult {
 
 // Reads `path` as float. Integer-coded formats (8/16-bit PNG, JPEG, TIFF) are sRGB-encoded and
 // decoded to linear when `decode_srgb`; float formats (EXR, float TIFF) are taken as linear.
-// NaN/Inf: Reject throws (naming the file, the count and the first pixel); Clean replaces them.
+// NaN/Inf and absurd finite values (|x| > kMaxLinearValue): Reject throws (naming the file, the
+// count, the first pixel and `fix`, what the user can do); Clean replaces them (clean_nonfinite).
 // `frame` only labels messages.
 ImageReadResult read_image_file(const std::string& path, bool decode_srgb = true,
-                                NonFinitePolicy nonfinite = NonFinitePolicy::Reject,
-                                int frame = -1);
+                                NonFinitePolicy nonfinite = NonFinitePolicy::Reject, int frame = -1,
+                                const std::string& fix = "");
+// The --nonfinite clean advice, for the commands that take the option (new, info).
+extern const char* const kNonFiniteCleanHint;
 
 // Storage of a written image. The sRGB-coded ones encode linear input; the float ones store it.
 enum class PixelFormat { Png8, Png16, Tiff16, ExrHalf, ExrFloat };

@@ -2,6 +2,7 @@
 
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "util/error.h"
@@ -34,8 +35,9 @@ UniformBlurBank::UniformBlurBank(int64_t height, int64_t width, std::vector<doub
     }
     // Linear (not circular) convolution: the frame is zero-padded by the kernel's reach.
     const int64_t P = int64_t(std::ceil(lens_blur_support(rmax, params))) + 1;
-    m_hp = smooth_length(height + P);
-    m_wp = smooth_length(width + P);
+    // ... and holds the whole kernel (2P + 1 taps), which a frame thinner than P does not.
+    m_hp = smooth_length(std::max(height + P, 2 * P + 1));
+    m_wp = smooth_length(std::max(width + P, 2 * P + 1));
     torch::NoGradGuard no_grad;
     const std::vector<int64_t> size{m_hp, m_wp};
     const auto ones = torch::fft::rfft2(torch::ones({1, height, width}), size);

@@ -28,6 +28,10 @@ cv::Mat srgb_grey8(const Image& img);
 
 // The DIS flow of a preset (FlowPreset::Fine is tuned in flow.cpp).
 cv::Ptr<cv::DISOpticalFlow> make_dis(FlowPreset p);
+// dis.calc(a, b, flow) on any size: OpenCV's DIS crashes on frames whose short side is under
+// 32 px (its pyramid runs out below the finest scale: 48x12, 120x30, 160x24 seen), so such
+// frames are upsampled to 32 px and the flow brought back; NaN vectors become 0.
+void dis_calc(cv::DISOpticalFlow& dis, const cv::Mat& a, const cv::Mat& b, cv::Mat& flow);
 
 // Bilinear sample of a CV_32FC1 / CV_32FC2 Mat at (x, y) with edge clamping.
 float sample1(const cv::Mat& m, float x, float y);

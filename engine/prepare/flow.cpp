@@ -3,6 +3,9 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include <algorithm>
+#include <cmath>
+
 #include "prepare/detail.h"
 #include "util/error.h"
 
@@ -51,8 +54,9 @@ cv::Mat srgb_grey8(const Image& img) {
 namespace {
 template <typename T>
 T bilinear(const cv::Mat& m, float x, float y) {
-    x = std::min(std::max(x, 0.0f), float(m.cols - 1));
-    y = std::min(std::max(y, 0.0f), float(m.rows - 1));
+    // A NaN coordinate (a flow vector gone bad) reads the corner, never outside the image.
+    x = x >= 0.0f ? std::min(x, float(m.cols - 1)) : 0.0f;
+    y = y >= 0.0f ? std::min(y, float(m.rows - 1)) : 0.0f;
     const int x0 = std::min(int(x), m.cols - 2 < 0 ? 0 : m.cols - 2);
     const int y0 = std::min(int(y), m.rows - 2 < 0 ? 0 : m.rows - 2);
     const int x1 = std::min(x0 + 1, m.cols - 1), y1 = std::min(y0 + 1, m.rows - 1);
@@ -72,6 +76,25 @@ cv::Vec2f sample2(const cv::Mat& m, float x, float y) {
 }  // namespace prep_detail
 
 using namespace prep_detail;
+
+void prep_detail::dis_calc(cv::DISOpticalFlow& dis, const cv::Mat& a, const cv::Mat& b,
+                           cv::Mat& flow) {
+    constexpr int kMinSide = 32;
+    const int short_side = std::min(a.cols, a.rows);
+    if (short_side >= kMinSide) {
+        dis.calc(a, b, flow);
+    } else {
+        const double s = double(kMinSide) / short_side;
+        const cv::Size big(int(std::lround(a.cols * s)), int(std::lround(a.rows * s)));
+        cv::Mat A, B, F;
+        cv::resize(a, A, big, 0, 0, cv::INTER_LINEAR);
+        cv::resize(b, B, big, 0, 0, cv::INTER_LINEAR);
+        dis.calc(A, B, F);
+        cv::resize(F, flow, a.size(), 0, 0, cv::INTER_AREA);
+        flow *= 1.0 / s;
+    }
+    cv::patchNaNs(flow, 0.0);
+}
 
 cv::Ptr<cv::DISOpticalFlow> prep_detail::make_dis(FlowPreset p) {
     const int preset =
@@ -97,7 +120,7 @@ namespace {
 
 Image flow_with(cv::DISOpticalFlow& dis, const cv::Mat& a, const cv::Mat& b) {
     cv::Mat flow;
-    dis.calc(a, b, flow);
+    dis_calc(dis, a, b, flow);
     return to_image(flow);
 }
 

@@ -150,8 +150,8 @@ std::vector<Image> baseline_residuals(const std::vector<Image>& frames, const Ca
                 cv::warpPerspective(all, inside, M, cv::Size(sw, sh),
                                     cv::INTER_NEAREST | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT,
                                     0);
-                dis->calc(grey[t], warped, f);
-                dis->calc(warped, grey[t], b);
+                dis_calc(*dis, grey[t], warped, f);
+                dis_calc(*dis, warped, grey[t], b);
                 const Image fi = to_image(f), bi = to_image(b);
                 const Image valid = flow_consistency(fi, bi);
                 for (int y = 0; y < sh; ++y)
@@ -428,7 +428,11 @@ std::vector<std::string> sequence_files(const std::string& path, int frames,
 }
 
 Image read_checked(const std::string& f, int i, int width, int height, const std::string& what) {
-    ImageReadResult r = read_image_file(f, false, NonFinitePolicy::Reject, i);
+    ImageReadResult r = read_image_file(
+        f, false, NonFinitePolicy::Reject, i,
+        what == "mask" ? "a --mask matte holds values in 0..1: fix the file"
+                       : "a --coc radius map holds finite radii in px: fix the file, or fit "
+                         "without --coc to estimate the radius");
     if (r.image.width != width || r.image.height != height)
         throw Error(file_error(f,
                                what + " size " + std::to_string(r.image.width) + "x" +
@@ -465,6 +469,7 @@ std::vector<Image> load_masks(const std::string& path, int frames, int width, in
 std::vector<Image> load_coc_maps(const std::string& path, int frames, int width, int height) {
     std::vector<Image> out;
     const auto files = sequence_files(path, frames, "radius map");
+    const float max_radius = max_coc_radius(width, height);
     for (int i = 0; i < frames; ++i) {
         Image src = read_checked(files[i], i, width, height, "radius map");
         Image m(width, height, 1);
@@ -477,6 +482,16 @@ std::vector<Image> load_coc_maps(const std::string& path, int frames, int width,
                                                std::to_string(x) + ", " + std::to_string(y) +
                                                "); radii are in px, ≥ 0",
                                            i));
+                if (v > max_radius)
+                    throw Error(file_error(
+                        files[i],
+                        "radius " + std::to_string(v) + " px at pixel (" + std::to_string(x) +
+                            ", " + std::to_string(y) +
+                            ") is beyond what a fit can model (at most " +
+                            std::to_string(int(max_radius)) +
+                            " px here: half the frame's long side, 256 px at most); check the "
+                            "map's units (px of this clip's size)",
+                        i));
                 m.at(x, y, 0) = v;
             }
         out.push_back(std::move(m));

@@ -31,6 +31,7 @@
 // Steps run at most work_width wide; the options' px are px of a 320 px wide frame, scaled.
 // Limit: a subject that never moves relative to the background is not separated (it is, for
 // the fit, part of the rigid background).
+#include <algorithm>
 #include <string>
 #include <vector>
 
@@ -86,8 +87,13 @@ std::vector<Image> vote_masks(const std::vector<Image>& masks, const CameraMotio
 // mean, RGBA masks their alpha; values are taken as stored (no sRGB decode), clamped to [0,1].
 std::vector<Image> load_masks(const std::string& path, int frames, int width, int height);
 
+// The largest radius (px) a --coc map may hold for a width × height clip: half the long side,
+// 256 px at most (a disk beyond that is no misfocus a fit can undo, and its cost grows as r²).
+inline float max_coc_radius(int width, int height) {
+    return std::min(256.0f, 0.5f * float(std::max(width, height)));
+}
 // Radius maps (px) for `refocus fit --coc`: single-channel (or first channel) float images,
-// finite and ≥ 0, same rules for count and size as load_masks.
+// finite and in 0..max_coc_radius, same rules for count and size as load_masks.
 std::vector<Image> load_coc_maps(const std::string& path, int frames, int width, int height);
 
 }  // namespace refocus

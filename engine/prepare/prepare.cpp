@@ -189,7 +189,8 @@ bool made_for(const Project& project, int width, int height) {
 }
 
 Image read_expect(const std::string& path, int t, int w, int h, int channels) {
-    ImageReadResult r = read_image_file(path, false, NonFinitePolicy::Reject, t);
+    ImageReadResult r = read_image_file(path, false, NonFinitePolicy::Reject, t,
+                                        "the preparation cache is damaged: fit with --reprepare");
     if (r.image.width != w || r.image.height != h)
         throw Error(file_error(path,
                                "size " + std::to_string(r.image.width) + "x" +

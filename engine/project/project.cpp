@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <condition_variable>
+#include <cstdio>
 #include <deque>
 #include <exception>
 #include <functional>
@@ -19,6 +20,10 @@ namespace refocus {
 using nlohmann::json;
 
 namespace {
+
+// No side of a clip more than this many times the other: the masks' flow runs at 160 px wide or
+// more, where the short side must keep 12 px (kMinClipSize).
+constexpr int kMaxClipAspect = 12;
 
 [[noreturn]] void field_error(const std::string& label, const std::string& field,
                               const std::string& problem) {
@@ -74,40 +79,75 @@ void validate_fit_section(Project& p, const std::string& label) {
     if (!f.is_object()) field_error(label, "fit", "must be an object (got " + json_brief(f) + ")");
     for (const char* key : {"minutes", "iters"})
         if (f.contains(key) && f[key].is_null()) f[key] = 0;
-    auto number = [&](const char* key, double lo, double hi) {
-        if (!f.contains(key)) return;
-        const json& v = f[key];
-        const std::string path = std::string("fit.") + key;
-        if (!v.is_number())
-            field_error(label, path, "must be a number (got " + json_brief(v) + ")");
-        const double x = v.get<double>();
-        if (!(std::isfinite(x) && x >= lo && x <= hi))
-            field_error(label, path,
-                        "must be in " + json_brief(json(lo)) + ".." + json_brief(json(hi)) +
-                            " (got " + json_brief(v) + ")");
-    };
-    auto integer = [&](const char* key, long long lo, long long hi) {
-        if (!f.contains(key)) return;
-        const json& v = f[key];
-        long long x = 0;
-        if (!as_int64(v, x) || x < lo || x > hi)
-            field_error(label, std::string("fit.") + key,
-                        "must be an integer in " + std::to_string(lo) + ".." + std::to_string(hi) +
-                            " (got " + json_brief(v) + ")");
-    };
-    auto string = [&](const char* key) {
-        if (f.contains(key) && !f[key].is_string())
-            field_error(label, std::string("fit.") + key,
-                        "must be a string (got " + json_brief(f[key]) + ")");
-    };
-    number("minutes", 0.0, kMaxFitMinutes);
-    integer("iters", 0, kMaxFitIters);
-    integer("batch", 0, 4096);  // 0: the model's choice
-    integer("seed", 0, std::numeric_limits<long long>::max());
-    for (const char* key : {"preset", "coc", "mask", "kernel", "checkpoint"}) string(key);
+    check_fit_section(f, label);
+}
+
+std::string bound_text(const FitFieldBound& b) {
+    return std::string(b.integer ? "an integer" : "a number") + " in " +
+           json_brief(b.integer ? json(static_cast<long long>(b.lo)) : json(b.lo)) + ".." +
+           json_brief(b.integer ? json(static_cast<long long>(b.hi)) : json(b.hi));
 }
 
 }  // namespace
+
+// One bound per stored number: the loader checks project.json with it and the CLI its flags,
+// so that a value a flag stores always loads again.
+const std::vector<FitFieldBound>& fit_field_bounds() {
+    static const std::vector<FitFieldBound> bounds = {
+        {"minutes", "--minutes", 0.0, kMaxFitMinutes, false},
+        {"iters", "--iters", 0, double(kMaxFitIters), true},
+        {"batch", "--batch", 0, double(kMaxFitBatch), true},  // 0: the model's choice
+        {"seed", "--seed", 0, double(kMaxFitSeed), true},
+    };
+    return bounds;
+}
+
+const FitFieldBound& fit_field_bound(const std::string& key) {
+    for (const auto& b : fit_field_bounds())
+        if (key == b.key) return b;
+    throw Error("internal: no bound for fit." + key);
+}
+
+void check_fit_section(const json& f, const std::string& label) {
+    if (!f.is_object()) field_error(label, "fit", "must be an object (got " + json_brief(f) + ")");
+    for (const auto& b : fit_field_bounds()) {
+        if (!f.contains(b.key)) continue;
+        const json& v = f[b.key];
+        const std::string path = std::string("fit.") + b.key;
+        const std::string why = std::string("must be ") + bound_text(b) + " (got " + json_brief(v) +
+                                "; refocus fit " + b.flag + " sets it)";
+        if (b.integer) {
+            long long x = 0;
+            if (!as_int64(v, x) || x < static_cast<long long>(b.lo) ||
+                x > static_cast<long long>(b.hi))
+                field_error(label, path, why);
+        } else {
+            if (!v.is_number()) field_error(label, path, why);
+            const double x = v.get<double>();
+            if (!(std::isfinite(x) && x >= b.lo && x <= b.hi)) field_error(label, path, why);
+        }
+    }
+    for (const char* key : {"preset", "coc", "mask", "kernel", "checkpoint"})
+        if (f.contains(key) && !f[key].is_string())
+            field_error(label, std::string("fit.") + key,
+                        "must be a string (got " + json_brief(f[key]) + ")");
+}
+
+long long checked_fit_flag(const std::string& key, const std::string& text) {
+    const FitFieldBound& b = fit_field_bound(key);
+    const std::string why =
+        std::string(b.flag) + " must be " + bound_text(b) + " (got '" + text + "')";
+    size_t used = 0;
+    long long v = 0;
+    try {
+        v = std::stoll(text, &used);
+    } catch (const std::exception&) {
+        throw Error(why);
+    }
+    if (used != text.size() || v < static_cast<long long>(b.lo) || v > static_cast<long long>(b.hi))
+        throw Error(why);
+    return v;
+}
 
 fs::path Project::frame_path(int index) const {
     return dir / format_pattern(frame_pattern, index);
@@ -198,7 +238,17 @@ Project Project::from_json(const json& j, const fs::path& dir, const std::string
 
 Project Project::load(const fs::path& dir_or_file) {
     fs::path file = dir_or_file;
-    if (fs::is_directory(file)) file /= kFileName;
+    const std::string what =
+        " (a project is the folder 'refocus new <clip> -o <folder>' made, holding project.json)";
+    if (fs::is_directory(file)) {
+        file /= kFileName;
+        if (!fs::exists(file))
+            throw Error(
+                file_error(dir_or_file.string(),
+                           "is not a project: no " + std::string(kFileName) + " in it" + what));
+    } else if (fs::exists(file) && file.filename() != kFileName) {
+        throw Error(file_error(file.string(), "is not a project" + what));
+    }
     if (!fs::exists(file)) throw Error(file_error(file.string(), "no such project file"));
     const json j = read_json_file(file);
     Project p = from_json(j, file.parent_path(), file.string());
@@ -336,11 +386,21 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
         throw Error(file_error(dir.string(), "exists and is not a folder"));
     auto reader = ClipReader::open(clip, opts);
     const ClipInfo& info = reader->info();
+    if (!info.note.empty()) std::fprintf(stderr, "note: %s: %s\n", clip.c_str(), info.note.c_str());
     if (info.width < kMinClipSize || info.height < kMinClipSize)
         throw Error(file_error(
             clip, "the clip is " + std::to_string(info.width) + "x" + std::to_string(info.height) +
                       ": too small, Refocus needs at least " + std::to_string(kMinClipSize) + "x" +
                       std::to_string(kMinClipSize) + " pixels (optical flow)"));
+    // Flow and masks work on frames scaled to a few hundred px wide; a clip much wider than
+    // high (or higher than wide) would leave them under 12 px.
+    if (std::max(info.width, info.height) > kMaxClipAspect * std::min(info.width, info.height))
+        throw Error(file_error(clip, "the clip is " + std::to_string(info.width) + "x" +
+                                         std::to_string(info.height) + ": more than " +
+                                         std::to_string(kMaxClipAspect) +
+                                         " times as wide as high (or high as wide); Refocus "
+                                         "needs a frame no narrower than 1:" +
+                                         std::to_string(kMaxClipAspect) + " (crop it first)"));
 
     Project p;
     p.dir = dir;

@@ -16,6 +16,8 @@ namespace refocus {
 // Budgets a fit accepts (CLI flags and project.json's "fit" section): a week, 10^8 steps.
 constexpr double kMaxFitMinutes = 7 * 24 * 60.0;
 constexpr long long kMaxFitIters = 100000000;
+constexpr int kMaxFitBatch = 4096;
+constexpr long long kMaxFitSeed = (1LL << 53) - 1;  // exact in a JSON double
 // Below this a clip has no room for optical flow (OpenCV's DIS refuses frames under 12 px).
 constexpr int kMinClipSize = 12;
 
@@ -52,6 +54,22 @@ struct Project {
     // process. The merged sections are kept in this object.
     void save_merged(const std::vector<std::string>& own);
 };
+
+// A stored number of project.json's "fit" section, its flag and its bounds.
+struct FitFieldBound {
+    const char* key;   // "batch"
+    const char* flag;  // "--batch"
+    double lo, hi;
+    bool integer;
+};
+const std::vector<FitFieldBound>& fit_field_bounds();
+const FitFieldBound& fit_field_bound(const std::string& key);
+// The "fit" section's numbers and strings against their bounds; refocus::Error naming `label`,
+// the field and the flag that sets it.
+void check_fit_section(const nlohmann::json& fit, const std::string& label);
+// An integer flag's text for fit field `key` ("batch", "seed", "iters") against the same bound;
+// refocus::Error "--batch must be an integer in 0..4096 (got '99999')".
+long long checked_fit_flag(const std::string& key, const std::string& text);
 
 // Is `path` a project folder (or its project.json)?
 bool is_project_path(const std::string& path);

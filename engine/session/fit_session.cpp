@@ -82,6 +82,8 @@ void write_fit_settings(Project& p, const FitSettings& s, const FitSnapshot* sna
                        {"step", snap->step},
                        {"elapsed_s", snap->elapsed_s},
                        {"reblur_psnr", snap->reblur_psnr}};
+    // What is stored must load again: the loader's own check, before anything is written.
+    check_fit_section(f, p.project_file().string() + " (not written)");
     p.sections["fit"] = f;
     p.save_merged({"fit"});
 }
@@ -97,6 +99,61 @@ std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
     auto engine = std::make_unique<FitEngine>(data, s.fit);
     engine->load_checkpoint(fit_dir(p));
     return engine;
+}
+
+namespace {
+// `path` with symbolic links and "..' resolved as far as it exists.
+fs::path resolved(const fs::path& path) {
+    std::error_code ec;
+    fs::path r = fs::weakly_canonical(fs::absolute(path), ec);
+    return ec ? fs::absolute(path).lexically_normal() : r;
+}
+
+bool same_or_inside(const fs::path& path, const fs::path& dir) {
+    auto p = path.begin();
+    for (auto d = dir.begin(); d != dir.end(); ++d, ++p) {
+        if (d->empty()) continue;  // a trailing "/"
+        if (p == path.end() || *p != *d) return false;
+    }
+    return true;
+}
+}  // namespace
+
+void check_export_target(const Project& p, const fs::path& target) {
+    const fs::path t = resolved(target);
+    const fs::path dir = resolved(p.dir);
+    for (const char* own : {Project::kFileName, "fit", "frames", "prep", "edits", "depth"})
+        if (same_or_inside(t, dir / own))
+            throw Error(
+                file_error(target.string(),
+                           (std::string(own) == Project::kFileName
+                                ? std::string("is the project's own ") + own
+                                : std::string("is inside the project's own ") + own + "/ folder") +
+                               ": an export never writes over a project; choose another --out"));
+    std::vector<std::pair<fs::path, std::string>> inputs;
+    fs::path source = p.source;
+    if (source.is_relative()) source = p.dir / source;
+    if (p.source_kind == "sequence")
+        inputs.push_back({fs::is_directory(source) ? source : source.parent_path(),
+                          "the folder of the source frames"});
+    else
+        inputs.push_back({source, "the source clip"});
+    FitSettings s;
+    try {
+        s = read_fit_settings(p);
+    } catch (const Error&) {  // the fit section is reported by whoever reads it
+    }
+    if (!s.setup.coc_path.empty())
+        inputs.push_back(
+            {fs::path(s.setup.coc_path).parent_path(), "the folder of the --coc maps"});
+    if (!s.setup.mask_path.empty())
+        inputs.push_back(
+            {fs::path(s.setup.mask_path).parent_path(), "the folder of the --mask mattes"});
+    for (const auto& [path, what] : inputs)
+        if (!path.empty() && same_or_inside(t, resolved(path)))
+            throw Error(file_error(target.string(), "is " + what + " (" + path.string() +
+                                                        "): an export never writes over its "
+                                                        "inputs; choose another --out"));
 }
 
 ExportPass parse_export_pass(const std::string& n) {
@@ -183,6 +240,18 @@ void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
     ++s.frames;
 }
 
+// No export writes a NaN/Inf pixel: a fit that produced one is refused before anything is
+// renamed into place (the writer's staging is removed as the error unwinds).
+void refuse_nonfinite(const Image& img, const std::string& what, int t) {
+    long first = -1;
+    const size_t bad = count_nonfinite(img, &first);
+    if (bad == 0) return;
+    throw Error(what + (t >= 0 ? " frame " + std::to_string(t) : std::string()) + ": " +
+                std::to_string(bad) +
+                " NaN/Inf value(s) in the fit's result; nothing was written (the fit is damaged: "
+                "fit again without --resume)");
+}
+
 // The project's atlas edits as deltas over the current atlases (undefined: no edit).
 std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const ProjectEdits* e) {
     if (!e || !e->has_edits()) return {};
@@ -201,6 +270,7 @@ std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const Pro
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
                                      const std::string& out, const ExportOptions& o) {
     const std::string name = export_pass_name(pass);
+    if (o.project) check_export_target(*o.project, out);
     const bool data_pass =
         pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth;
     if (data_pass && format != "exr" && format != "exr32")
@@ -222,7 +292,9 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
             if (delta.defined()) t = t + delta[0];
             std::string path =
                 (fs::path(out) / ("atlas_" + layer + "." + extension_of(pf))).string();
-            write_image_file(path, tensor_to_image(t.clamp_min(0)), pf);
+            const Image img = tensor_to_image(t.clamp_min(0));
+            refuse_nonfinite(img, "atlas_" + layer, -1);
+            write_image_file(path, img, pf);
             files.push_back(path);
         };
         std::lock_guard<std::mutex> lock(engine.model_mutex());
@@ -303,6 +375,7 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
             }
             frame = tensor_to_image(img.contiguous());
         }
+        refuse_nonfinite(frame, name, t);
         writer.write(frame);
         if (o.progress && !o.progress(t - first + 1, last - first + 1)) {
             writer.cancel();

@@ -63,6 +63,11 @@ struct ExportOptions {
     FallbackShare* fallback = nullptr;       // filled by the passes made from the plate
 };
 
+// Refuses (refocus::Error naming `target`) an export target that is, or lies inside, the
+// project's own files (project.json, fit/, frames/, prep/, edits/, depth/), or that is an input of
+// the fit: the source clip (a sequence's whole folder) and the --coc / --mask files' folders.
+void check_export_target(const Project& p, const fs::path& target);
+
 // Writes one pass. Sequences go to `out` (a folder) as <what>_%04d.<ext> numbered from 0 (the
 // range's first frame is file 0); mp4 to `out` (a file). A cancelled or failed export removes
 // what it wrote: files are complete or absent. Edits show in the atlas and in every rendered

@@ -1,6 +1,7 @@
 #include "util/fs.h"
 
 #include <fcntl.h>
+#include <signal.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -9,7 +10,9 @@
 #include <cctype>
 #include <cerrno>
 #include <cstring>
+#include <cstdlib>
 #include <fstream>
+#include <regex>
 #include <sstream>
 #include <vector>
 
@@ -41,6 +44,22 @@ fs::path temp_sibling(const fs::path& path) {
     return dir / name;
 }
 
+void remove_stale_temporaries(const fs::path& dir) {
+    static const std::regex name(R"(^\..*\.tmp-(\d+)-\d+.*$)");
+    std::error_code ec;
+    for (fs::directory_iterator it(dir.empty() ? "." : dir, ec), end; !ec && it != end;
+         it.increment(ec)) {
+        std::smatch m;
+        const std::string n = it->path().filename().string();
+        if (!std::regex_match(n, m, name)) continue;
+        const long pid = std::strtol(m[1].str().c_str(), nullptr, 10);
+        if (pid <= 0 || pid == ::getpid()) continue;
+        if (::kill(static_cast<pid_t>(pid), 0) == 0 || errno != ESRCH) continue;  // still running
+        std::error_code rm;
+        fs::remove_all(it->path(), rm);
+    }
+}
+
 void commit_temp(const fs::path& tmp, const fs::path& path) {
     if (::rename(tmp.c_str(), path.c_str()) != 0) {
         std::string why = errno_text();
@@ -56,6 +75,7 @@ fs::path make_temp_dir_beside(const fs::path& dir) {
     const fs::path parent = target.parent_path();
     std::error_code ec;
     if (!parent.empty()) fs::create_directories(parent, ec);
+    remove_stale_temporaries(parent);
     for (int attempt = 0; attempt < 100; ++attempt) {
         const fs::path tmp = temp_sibling(target);
         if (::mkdir(tmp.c_str(), 0755) == 0) return tmp;

@@ -15,6 +15,9 @@ void write_file_atomic(const fs::path& path, const std::string& bytes);
 // A temporary sibling name for `path` ("<dir>/.<name>.tmp-<pid>-<n><ext>"), keeping the
 // extension so that format writers that look at it still pick the right one.
 fs::path temp_sibling(const fs::path& path);
+// Removes the temporaries (temp_sibling's names, files or folders) in `dir` whose process no
+// longer runs on this machine: what a killed command left. Errors are ignored.
+void remove_stale_temporaries(const fs::path& dir);
 
 // Renames `tmp` over `path` and fsyncs the folder; throws refocus::Error on failure.
 void commit_temp(const fs::path& tmp, const fs::path& path);

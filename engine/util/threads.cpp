@@ -4,18 +4,37 @@
 #include <omp.h>
 #include <opencv2/core.hpp>
 
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
 #include <cstdlib>
+#include <string>
 #include <thread>
 
 namespace refocus {
 
+int threads_from_env(const char* env, int cores, std::string* warning) {
+    const int n = std::max(1, cores);
+    if (!env) return n;
+    // More threads than 4 a core only thrash (99999 hung every command): refused with a warning.
+    const long hi = 4L * n;
+    errno = 0;
+    char* end = nullptr;
+    const long v = std::strtol(env, &end, 10);
+    const bool number = end != env && *end == '\0' && errno == 0;
+    if (number && v >= 1 && v <= hi) return static_cast<int>(v);
+    if (warning)
+        *warning = "warning: REFOCUS_THREADS='" + std::string(env) +
+                   "' is not a thread count in 1.." + std::to_string(hi) + " (4 per core); using " +
+                   std::to_string(n) + " (the core count)";
+    return n;
+}
+
 int init_threads() {
-    int n = static_cast<int>(std::thread::hardware_concurrency());
-    if (const char* env = std::getenv("REFOCUS_THREADS")) {
-        int v = std::atoi(env);
-        if (v > 0) n = v;
-    }
-    if (n < 1) n = 1;
+    std::string warning;
+    const int n = threads_from_env(std::getenv("REFOCUS_THREADS"),
+                                   static_cast<int>(std::thread::hardware_concurrency()), &warning);
+    if (!warning.empty()) std::fprintf(stderr, "%s\n", warning.c_str());
     at::set_num_threads(n);
     omp_set_num_threads(n);
     cv::setNumThreads(n);

@@ -1,5 +1,6 @@
-// A seeded fuzzer of project.json and checkpoint.json: every mutant is refused with one line
-// naming the file, or accepted; none crashes or hangs.
+// A seeded fuzzer of project.json, checkpoint.json, the checkpoint's tensor file and the input's
+// pixel values: every mutant is refused with one line naming the file, or accepted; none crashes
+// or hangs, and no export holds a non-finite pixel.
 #include <doctest/doctest.h>
 
 #include <fstream>
@@ -9,6 +10,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "fit/fit_engine.h"
+#include "io/image_file.h"
 #include "robustness/robust_util.h"
 #include "test_util.h"
 #include "util/fs.h"
@@ -145,6 +148,8 @@ std::pair<int, std::string> outcome_of(const fs::path& d) {
 
 constexpr int kProject = 320;
 constexpr int kCheckpoint = 16;
+constexpr int kTensorFiles = 8;
+constexpr int kPixelClips = 6;
 
 // Every mutant is loaded as `refocus info` loads it, in a forked child (a crash or a hang is
 // seen as such); every 8th is listed for the CLI itself (a process start costs ~0.7 s).
@@ -181,32 +186,56 @@ void fuzz_project_cli(const fs::path& work) {
     CHECK(!fs::exists(work / "INJECTED"));
 }
 
+// A copy of the fitted project at `d` whose files are links to the original's, but for
+// project.json (the base, with the radius maps' path made absolute) and an empty fit/.
+void mutant_project(const Clip& c, const fs::path& d, const json& base) {
+    fs::create_directories(d / "fit");
+    for (const auto& e : fs::directory_iterator(c.project))
+        if (e.path().filename() != "fit" && e.path().filename() != ".lock" &&
+            e.path().filename() != "project.json")
+            fs::create_symlink(fs::absolute(e.path()), d / e.path().filename());
+    json pj = base;
+    pj["fit"]["coc"] = fs::absolute(c.clip / "coc_%04d.exr").string();
+    std::ofstream(d / "project.json") << pj.dump(2);
+}
+
+// Exports one frame of each listed project, two at a time, each under a timeout; each leaves
+// out.txt and rc.txt in its folder.
+void export_each(const fs::path& work, const std::string& list_name, const std::string& list) {
+    std::ofstream(work / list_name) << list;
+    RunResult r = run(
+        "cd " + q(work.string()) + " && xargs -P 2 -I{} sh -c 'timeout -k 2 60 " + REFOCUS_CLI +
+        " export \"$1\" --what sharp --last 0 --out \"$1/out\" > \"$1/out.txt\" 2>&1; echo $? > "
+        "\"$1/rc.txt\"' _ {} < " +
+        list_name);
+    REQUIRE(r.code == 0);
+}
+
 // checkpoint.json: export one frame from a copy of the fitted project (the costly part).
 void fuzz_checkpoints(const Clip& c, const fs::path& work, const json& base, Mutator& mutate) {
     const json ckpt = json::parse(read_text_file(c.project / "fit" / "checkpoint.json"));
     std::ostringstream list2;
     for (int i = 0; i < kCheckpoint; ++i) {
         const fs::path d = work / ("c" + std::to_string(i));
-        fs::create_directories(d / "fit");
-        for (const auto& e : fs::directory_iterator(c.project))
-            if (e.path().filename() != "fit" && e.path().filename() != ".lock" &&
-                e.path().filename() != "project.json")
-                fs::create_symlink(fs::absolute(e.path()), d / e.path().filename());
-        json pj = base;  // the radius maps' path is relative to the project: made absolute here
-        pj["fit"]["coc"] = fs::absolute(c.clip / "coc_%04d.exr").string();
-        std::ofstream(d / "project.json") << pj.dump(2);
+        mutant_project(c, d, base);
         for (const auto& e : fs::directory_iterator(c.project / "fit"))
             if (e.path().filename() != "checkpoint.json")
                 fs::create_symlink(fs::absolute(e.path()), d / "fit" / e.path().filename());
-        std::ofstream(d / "fit" / "checkpoint.json") << mutate(ckpt);
+        std::string text = mutate(ckpt);
+        // Every other mutant carries a checksum of its own fields, so that the validation of
+        // each field is reached too (the checksum alone would refuse them all).
+        if (i % 2 == 0) {
+            const json m = json::parse(text, nullptr, false);
+            if (m.is_object()) {
+                json signed_m = m;
+                signed_m["checksum"] = FitEngine::checkpoint_json_checksum(m);
+                text = signed_m.dump(1);
+            }
+        }
+        std::ofstream(d / "fit" / "checkpoint.json") << text;
         list2 << q(d.string()) << "\n";
     }
-    std::ofstream(work / "list2.txt") << list2.str();
-    RunResult r = run(
-        "cd " + q(work.string()) + " && xargs -P 2 -I{} sh -c 'timeout -k 2 60 " + REFOCUS_CLI +
-        " export \"$1\" --what sharp --last 0 --out \"$1/out\" > \"$1/out.txt\" 2>&1; echo $? > "
-        "\"$1/rc.txt\"' _ {} < list2.txt");
-    REQUIRE(r.code == 0);
+    export_each(work, "list2.txt", list2.str());
     Tally tally;
     for (int i = 0; i < kCheckpoint; ++i) {
         const fs::path d = work / ("c" + std::to_string(i));
@@ -214,6 +243,85 @@ void fuzz_checkpoints(const Clip& c, const fs::path& work, const json& base, Mut
         tally.add(rc, count_lines_with(out, "error:") == 1, d / "fit" / "checkpoint.json", out);
     }
     tally.check("checkpoint.json mutants", kCheckpoint);
+}
+
+// The checkpoint's tensor file: bytes flipped, zeroed, cut or duplicated; every mutant is
+// refused with one line naming the file (the checksum), none crashes or exports.
+void fuzz_tensor_files(const Clip& c, const fs::path& work, const json& base, std::mt19937& rng) {
+    const json ckpt = json::parse(read_text_file(c.project / "fit" / "checkpoint.json"));
+    const std::string pt_name = ckpt["tensors"].get<std::string>();
+    const std::string bytes = read_text_file(c.project / "fit" / pt_name);
+    std::ostringstream list;
+    for (int i = 0; i < kTensorFiles; ++i) {
+        const fs::path d = work / ("t" + std::to_string(i));
+        mutant_project(c, d, base);
+        fs::copy_file(c.project / "fit" / "checkpoint.json", d / "fit" / "checkpoint.json");
+        std::string m = bytes;
+        auto at = [&] { return std::uniform_int_distribution<size_t>(0, m.size() - 1)(rng); };
+        switch (i % 4) {
+            case 0:  // scattered flips
+                for (int k = 0; k < 1 + int(at() % 2000); ++k) m[at()] ^= char(1 + at() % 255);
+                break;
+            case 1:  // a zeroed run
+                std::fill_n(m.begin() + std::min(at(), m.size() - 64), 64, '\0');
+                break;
+            case 2:  // cut
+                m.resize(at());
+                break;
+            default:  // one bit
+                m[at()] ^= 1;
+                break;
+        }
+        std::ofstream(d / "fit" / pt_name, std::ios::binary) << m;
+        list << q(d.string()) << "\n";
+    }
+    export_each(work, "list3.txt", list.str());
+    Tally tally;
+    for (int i = 0; i < kTensorFiles; ++i) {
+        const fs::path d = work / ("t" + std::to_string(i));
+        const auto [rc, out] = outcome_of(d);
+        tally.add(rc, one_line_naming(out, pt_name), d / "fit" / pt_name, out);
+        CHECK(rc != 0);  // a damaged archive never exports
+    }
+    tally.check("tensor file mutants", kTensorFiles);
+}
+
+// Input frames with extreme values (finite and not) at random places: `new` refuses them with
+// one line naming the frame, or with --nonfinite clean ingests them; a fit of a cleaned clip
+// exports no non-finite pixel.
+void fuzz_pixels(const fs::path& work, std::mt19937& rng) {
+    const float extremes[] = {1e30f, -1e30f, 65504.0f, 1e5f, -3e4f, 1e-40f, NAN, INFINITY};
+    Tally refused, cleaned;
+    for (int i = 0; i < kPixelClips; ++i) {
+        const fs::path d = work / ("x" + std::to_string(i));
+        fs::create_directories(d / "in");
+        for (int t = 0; t < 4; ++t) {
+            Image f = pattern_frame(40, 24, t);
+            for (int k = 0; k < int(rng() % 20); ++k)
+                f.pixels[rng() % f.pixels.size()] = extremes[rng() % std::size(extremes)];
+            char name[32];
+            std::snprintf(name, sizeof name, "f_%04d.exr", t);
+            write_image_file((d / "in" / name).string(), f, PixelFormat::ExrFloat, false);
+        }
+        RunResult r = cli_t("new " + q((d / "in").string()) + " -o " + q((d / "p").string()), 60);
+        refused.add(r.code, one_line_naming(r.output, ".exr"), d / "in", r.output);
+        r = cli_t(
+            "new " + q((d / "in").string()) + " -o " + q((d / "c").string()) + " --nonfinite clean",
+            60);
+        cleaned.add(r.code, true, d / "in", r.output);
+        CHECK(r.code == 0);
+    }
+    refused.check("extreme pixel values (new)", kPixelClips);
+    cleaned.check("extreme pixel values (new --nonfinite clean)", kPixelClips);
+    const fs::path c = work / "x0" / "c";
+    RunResult r = cli_t("fit " + q(c.string()) + " --iters 4", 120);
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    r = cli_t("export " + q(c.string()) + " --what sharp --format exr32 --out " +
+              q((work / "x0" / "out").string()));
+    REQUIRE(r.code == 0);
+    for (const auto& e : fs::directory_iterator(work / "x0" / "out"))
+        CHECK(count_nonfinite(read_image_file(e.path().string(), false).image) == 0);
 }
 
 }  // namespace
@@ -226,4 +334,7 @@ TEST_CASE("fuzzed project.json and checkpoint.json: no crash, no hang, one line 
     fuzz_project_in_child(c, work, base, mutate);
     fuzz_project_cli(work);
     fuzz_checkpoints(c, work, base, mutate);
+    std::mt19937 rng(20261129);
+    fuzz_tensor_files(c, work, base, rng);
+    fuzz_pixels(work, rng);
 }
