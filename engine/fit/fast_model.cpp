@@ -200,48 +200,6 @@ std::string FastModel::preferred_batch_reason() const {
     return "a layer has the deblurring path; --batch 2 for the earlier default";
 }
 
-void FastModel::update_tv_weights() {
-    // Weighted as the atlases were fused (the sharpest views of each layer), over the atlases'
-    // current geometry: a checkpoint may bring its own (adopt_geometry).
-    torch::NoGradGuard no_grad;
-    const FitData& d = m_data;
-    auto sharpness = [&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); };
-    m_bg.tv_weight = m_fg.tv_weight = torch::Tensor();
-    if (int(m_opts.tv_radius_layers) & 1) {
-        auto views = d.per_frame([&](int64_t t) {
-            return m_two_layers ? (1.0 - d.mask[t]).clamp_min(1e-3)
-                                : torch::ones({1, d.height, d.width});
-        });
-        m_bg.tv_weight =
-            tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1),
-                          d.per_frame([&](int64_t t) { return sharpness(t) * views[t]; }), views,
-                          m_opts.tv_radius_fade);
-    }
-    if (m_two_layers && (int(m_opts.tv_radius_layers) & 2)) {
-        auto views = d.per_frame([&](int64_t t) { return d.mask[t].clamp_min(1e-3); });
-        // The subject's layer keeps the weight at any radius (no fade): a subject blurred in
-        // every frame (synth pan's, 7 px) gains from it (docs/method.md, Model).
-        m_fg.tv_weight = tv_weight_map(
-            m_fg, d.layer_radius(true).unsqueeze(1),
-            d.per_frame([&](int64_t t) { return sharpness(t) * views[t]; }), views, 0.0);
-    }
-}
-
-torch::Tensor FastModel::tv_weight_map(const Atlas& a, const torch::Tensor& radius,
-                                       const torch::Tensor& weight, const torch::Tensor& views,
-                                       double fade) const {
-    // The radii each texel was seen at, fused into the atlas: toward its sharpest views (as the
-    // texels are) and over all its views alike (their mean and spread); see tv_radius_factor.
-    const double cap = m_opts.tv_radius_cap;
-    if (!(cap > 1)) return torch::Tensor();
-    auto sharp = fuse(a, weight, radius);  // [1,Ha,Wa], ~ the smallest radius seen
-    auto mean = fuse(a, views, radius);    // each view alike
-    auto square = m_data.per_frame([&](int64_t t) { return radius[t] * radius[t]; });
-    auto f = tv_radius_factor(sharp, mean, fuse(a, views, square), m_opts.tv_radius_gain, cap,
-                              m_opts.tv_radius_spread, fade);
-    return f.unsqueeze(0);
-}
-
 void FastModel::rescale(Atlas& a, double s) {
     // Frame pixel centre x ↦ atlas s·x + (s − 1)/2: atlas pixel j spans [j, j + 1) / s − ½.
     if (s == 1) return;
@@ -252,101 +210,6 @@ void FastModel::rescale(Atlas& a, double s) {
                  .view({3, 3});
     a.to_atlas = torch::matmul(S, a.to_atlas.to(torch::kFloat64)).to(torch::kFloat32);
     a.scale = s;
-}
-
-void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                                 bool affine, double max_shift, bool static_camera) {
-    const int64_t T = m_data.frames, H = m_data.height, W = m_data.width;
-    // ECC runs on a proxy at most align_width px wide: its window and iterations are tuned in
-    // px, and the reblur's cost would grow with the square of the scale twice over. Proxy pixel
-    // x_p is the frame's k·x_p + (k − 1)/2 (the mean of a k × k block).
-    const int64_t k = m_opts.align_width > 0
-                          ? std::max<int64_t>(1, (W + m_opts.align_width - 1) / m_opts.align_width)
-                          : 1;
-    const int64_t h = H / k, w = W / k;
-    torch::Tensor pixels = m_pixels;
-    if (k > 1) {
-        auto ys = torch::arange(h, torch::kFloat32) * double(k) + (k - 1) / 2.0,
-             xs = torch::arange(w, torch::kFloat32) * double(k) + (k - 1) / 2.0;
-        auto g = torch::meshgrid({ys, xs}, "ij");
-        pixels = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({h * w})}, 1);
-    }
-    auto shrink = [&](const torch::Tensor& x) {  // [C,H,W] → [C,h,w], block means
-        if (k == 1) return x;
-        return torch::avg_pool2d(x.narrow(1, 0, h * k).narrow(2, 0, w * k).unsqueeze(0), k)[0];
-    };
-    auto grey = [&](const torch::Tensor& rgb) {  // [3,h,w] linear → sRGB luma, CV_32F
-        auto l = srgb_encode(rgb);
-        l = (0.299 * l[0] + 0.587 * l[1] + 0.114 * l[2]).contiguous();
-        return cv::Mat(int(h), int(w), CV_32F, l.data_ptr<float>()).clone();
-    };
-    for (int round = 0; round < m_opts.align_rounds; ++round) {
-        auto fused = fuse(a, weight).unsqueeze(0);
-        std::vector<torch::Tensor> mats;
-        for (int64_t t = 0; t < T; ++t) {
-            auto m = a.to_atlas[t].to(torch::kFloat64);
-            auto p = torch::matmul(a.to_atlas[t], pixels.t());
-            auto px = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, h, w, 2});
-            auto render = sample_bicubic(fused, to_grid(a, px))[0];
-            auto radius = shrink(m_data.radius[t].unsqueeze(0))[0].div(double(k));
-            auto blurred = lens_blur(render.contiguous(), radius.contiguous(), m_data.blur);
-            cv::Mat tmpl = grey(shrink(m_data.input[t])), moving = grey(blurred);
-            auto rmask = (shrink(region[t])[0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
-            cv::Mat mask(int(h), int(w), CV_8U, rmask.data_ptr<uint8_t>());
-            if (cv::countNonZero(mask) < 64) {
-                mats.push_back(m);
-                continue;
-            }
-            // Translation only: the homography's shape is right, its drift is what accumulates;
-            // more degrees of freedom let ECC wander on heavily blurred frames.
-            cv::Mat warp = cv::Mat::eye(2, 3, CV_32F);
-            bool ok = true;
-            try {
-                cv::findTransformECC(
-                    tmpl, moving, warp, cv::MOTION_TRANSLATION,
-                    cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 60, 1e-5),
-                    mask, 5);
-            } catch (const cv::Exception&) {
-                ok = false;  // no convergence: keep the mapping
-            }
-            // The proxy's translation in frame px: k times (the block centres' offset cancels).
-            auto wf = torch::eye(3, torch::kFloat64);
-            for (int r = 0; r < warp.rows; ++r)
-                for (int c = 0; c < 3; ++c)
-                    wf[r][c] = double(warp.at<float>(r, c)) * (c == 2 ? double(k) : 1.0);
-            // ECC maps template (input frame) pixels to the render's: frame x ↦ render w·x,
-            // and the render pixel y sits at atlas m·y. Refuse corrections over max_shift px.
-            double worst = 0;
-            for (double cy : {0.0, double(H - 1)})
-                for (double cx : {0.0, double(W - 1)}) {
-                    auto q = torch::matmul(wf, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
-                    worst =
-                        std::max(worst, std::hypot(q[0].item<double>() / q[2].item<double>() - cx,
-                                                   q[1].item<double>() / q[2].item<double>() - cy));
-                }
-            if (debug_enabled("align"))
-                std::fprintf(stderr, "align round %d frame %lld: %s, corner shift %.2f px\n", round,
-                             (long long)t, ok ? "ok" : "failed", worst);
-            // A camera judged static moves only by hand shake: the translation is kept where the
-            // frame then matches the reblurred atlas clearly better and well (ECC coefficient,
-            // unsmoothed), not where noise or something in one frame only (a flash, a passer-by)
-            // pulled it.
-            double rho0 = 0, rho1 = 0;
-            if (ok && static_camera) {
-                cv::Mat warped;
-                cv::warpAffine(moving, warped, warp, moving.size(),
-                               cv::INTER_LINEAR + cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
-                rho0 = cv::computeECC(tmpl, moving, mask);
-                rho1 = cv::computeECC(tmpl, warped, mask);
-                ok = rho1 > 0.9 && rho1 > rho0 + 0.002;
-            }
-            if (debug_enabled("align") && static_camera)
-                std::fprintf(stderr, "  static frame %lld: ECC coefficient %.4f -> %.4f\n",
-                             (long long)t, rho0, rho1);
-            mats.push_back(ok && worst < max_shift ? torch::matmul(m, wf) : m);
-        }
-        a.to_atlas = torch::stack(mats).to(torch::kFloat32);
-    }
 }
 
 torch::Tensor FastModel::map_coords(const Atlas& a, const std::vector<int64_t>& frames,
@@ -384,48 +247,6 @@ torch::Tensor FastModel::compose(const Atlas& a) const {
                              a.height, a.width);
     }
     return sum;
-}
-
-std::string FastModel::make_deblur_path(Atlas& a, const torch::Tensor& radius,
-                                        const torch::Tensor& weight, const torch::Tensor& views,
-                                        const char* name) {
-    // Only for a layer that no frame saw in focus: the median, over the texels that the layer
-    // covers in most of their views, of the radius each was seen at sharpest (fused as the
-    // texels are). Where focus reached a layer its sharp views carry the detail already, and
-    // the path would only fit the radius's errors (docs/method.md, Deblurring path).
-    torch::NoGradGuard no_grad;
-    const auto cover = fuse(a, torch::ones_like(views), views) > 0.5;
-    if (!cover.any().item<bool>()) return {};
-    const double r =
-        fuse(a, weight, radius.unsqueeze(1)).masked_select(cover).median().item<double>();
-    char line[200];
-    if (!(r >= m_opts.deblur_min_radius)) {
-        std::snprintf(line, sizeof line,
-                      "fit (fast): %s atlas: no deblurring path (seen in focus: median sharpest "
-                      "radius %.1f px < %.1f)",
-                      name, r, m_opts.deblur_min_radius);
-        return line;
-    }
-    // Q(f) = sqrt(max(0, 1/(env(f)^2 + eps) - 1)) on the frame's grid, where env is the envelope
-    // of the pillbox's transfer function 2 J1(x)/x at x = 2 pi r |f|: 1 up to its main lobe, then
-    // ~1.6 x^-1.5 (|J1(x)| <= sqrt(2/(pi x))). Zero at low frequencies: the texels carry those.
-    const int64_t N = 64, k = m_opts.deblur_kernel | 1;
-    auto f = torch::fft::fftfreq(N, torch::TensorOptions().dtype(torch::kFloat64));
-    auto x = 2 * M_PI * r * (f.view({N, 1}).pow(2) + f.view({1, N}).pow(2)).sqrt();
-    auto env = torch::clamp(1.6 * x.clamp_min(1e-6).pow(-1.5), 0.0, 1.0);
-    auto Q = (1.0 / (env * env + m_opts.deblur_eps) - 1.0).clamp_min(0.0).sqrt();
-    auto ker = torch::real(torch::fft::ifft2(Q.to(torch::kComplexDouble)));
-    ker = torch::roll(ker, {k / 2, k / 2}, {0, 1}).narrow(0, 0, k).narrow(1, 0, k);
-    ker = (ker - ker.mean()).to(torch::kFloat32);  // the cut keeps no DC
-    a.deblur_kernel = ker.view({1, 1, k, k}).expand({3, 1, k, k}).contiguous();
-    const int64_t s = std::max<int64_t>(1, std::lround(a.scale));
-    a.deblur =
-        torch::zeros({1, 3, (a.height + s - 1) / s, (a.width + s - 1) / s}).set_requires_grad(true);
-    std::snprintf(line, sizeof line,
-                  "fit (fast): %s atlas: deblurring path (never seen in focus: median sharpest "
-                  "radius %.1f px; gain up to %.0fx)",
-                  name, r, Q.max().item<double>());
-    return line;
 }
 
 torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
