@@ -15,95 +15,13 @@
 #include "prepare/proxy.h"
 #include "project/project.h"
 #include "synth/synth.h"
+#include "prep_fixtures.h"
 #include "test_util.h"
 #include "util/error.h"
 
 using namespace refocus;
 
-namespace {
-
-cv::Mat view(Image& img) {
-    return cv::Mat(img.height, img.width, CV_32FC(img.channels), img.data());
-}
-
-Image from_mat(const cv::Mat& m) {
-    Image img(m.cols, m.rows, m.channels());
-    cv::Mat v = view(img);
-    m.copyTo(v);
-    return img;
-}
-
-// Smooth random RGB texture in linear [0.05, 0.9]: good for dense flow and corners.
-cv::Mat texture(int w, int h, unsigned seed, double blur = 1.2) {
-    cv::Mat n(h, w, CV_32FC3);
-    cv::RNG rng(seed);
-    rng.fill(n, cv::RNG::UNIFORM, 0.0, 1.0);
-    cv::GaussianBlur(n, n, cv::Size(0, 0), blur);
-    cv::normalize(n, n, 0.05, 0.9, cv::NORM_MINMAX);
-    return n;
-}
-
-// Piecewise-constant rectangles (step edges, the ratio estimator's model), grey, linear.
-cv::Mat mondrian(int w, int h, unsigned seed, int smin = 14, int smax = 34, int per = 150) {
-    cv::Mat m(h, w, CV_32FC3, cv::Scalar::all(0.3));
-    std::mt19937 rng(seed);
-    std::uniform_int_distribution<int> px(-10, w), py(-10, h), sz(smin, smax);
-    std::uniform_real_distribution<float> lv(0.05f, 0.9f);
-    for (int i = 0; i < w * h / per; ++i) {
-        const float v = lv(rng);
-        cv::rectangle(m, cv::Rect(px(rng), py(rng), sz(rng), sz(rng)), cv::Scalar::all(v),
-                      cv::FILLED);
-    }
-    return m;
-}
-
-// frame(p) = src(A p): A maps frame pixels to source pixels.
-cv::Mat warp(const cv::Mat& src, const cv::Matx33d& A, int w, int h) {
-    cv::Mat out;
-    cv::warpPerspective(src, out, cv::Mat(A), cv::Size(w, h),
-                        cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REFLECT);
-    return out;
-}
-
-cv::Matx33d translate(double x, double y) {
-    return {1, 0, x, 0, 1, y, 0, 0, 1};
-}
-cv::Matx33d scale_about(double s, double cx, double cy) {
-    return translate(cx, cy) * cv::Matx33d(s, 0, 0, 0, s, 0, 0, 0, 1) * translate(-cx, -cy);
-}
-
-// Normalised pillbox of radius r (pixel coverage by 16x16 super-sampling).
-cv::Mat disk_kernel(double r) {
-    const int R = int(std::ceil(r)) + 1;
-    cv::Mat k(2 * R + 1, 2 * R + 1, CV_32F, 0.0f);
-    for (int y = -R; y <= R; ++y)
-        for (int x = -R; x <= R; ++x) {
-            int in = 0;
-            for (int j = 0; j < 16; ++j)
-                for (int i = 0; i < 16; ++i) {
-                    const double sx = x - 0.5 + (i + 0.5) / 16, sy = y - 0.5 + (j + 0.5) / 16;
-                    in += sx * sx + sy * sy <= r * r;
-                }
-            k.at<float>(y + R, x + R) = in / 256.0f;
-        }
-    return k / cv::sum(k)[0];
-}
-
-double median(std::vector<float> v) {
-    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-    return v[v.size() / 2];
-}
-
-std::string error_of(const std::function<void()>& f) {
-    try {
-        f();
-    } catch (const Error& e) {
-        return e.what();
-    }
-    return "";
-}
-
-}  // namespace
+using namespace refocus::test::prep;
 
 TEST_CASE("flow: known translation is recovered to sub-pixel accuracy in the interior") {
     const int w = 128, h = 72;
