@@ -9,6 +9,7 @@
 #include "progress.h"
 #include "fit/fit_engine.h"
 #include "io/clip.h"
+#include "prepare/noise.h"
 #include "project/project.h"
 #include "util/error.h"
 #include "util/validate.h"
@@ -61,6 +62,7 @@ int cmd_new(int argc, char** argv) {
     std::printf("created project %s: %dx%d, %d frames at %.3f fps from %s\n",
                 p.project_file().string().c_str(), p.width, p.height, p.frames, p.fps,
                 clip.c_str());
+    std::printf("noise: %s\n", project_noise(p).describe().c_str());
     return 0;
 }
 
@@ -80,10 +82,14 @@ int cmd_info(int argc, char** argv) {
         std::printf("frames:   %d\n", p.frames);
         std::printf("fps:      %.3f\n", p.fps);
         std::printf("cache:    %s\n", (p.dir / p.frame_pattern).string().c_str());
-        if (p.sections.empty()) {
+        const bool stored = p.sections.contains("noise");
+        std::printf("noise:    %s%s\n", project_noise(p).describe().c_str(),
+                    stored ? "" : ", measured now (the project predates the stored estimate)");
+        if (p.sections.empty() || (stored && p.sections.size() == 1)) {
             std::printf("holds:    frames only (not fitted yet)\n");
         } else {
             for (auto it = p.sections.begin(); it != p.sections.end(); ++it) {
+                if (it.key() == "noise") continue;
                 if (it.key() != "fit") {
                     std::printf("holds:    %s\n", it.key().c_str());
                     continue;

@@ -122,6 +122,21 @@ TEST_CASE("bench corpus: one row per clip and a mean, the CSV, --split, bad corp
             CHECK(std::isfinite(std::stod(rows[i][col(name)])));
         }
     }
+    // The yardstick (#51): the measured noise, the oracle blend at least
+    // as good as the better of input and model, and the radius error against coc_%04d.exr.
+    for (size_t i = 1; i < 3; ++i) {
+        for (const char* name : {"noise_levels", "model_gain", "oracle_gain", "radius_err_med_out",
+                                 "radius_err_p90_out"}) {
+            INFO(name << " in row " << i);
+            CHECK(std::isfinite(std::stod(rows[i][col(name)])));
+        }
+        CHECK(std::stod(rows[i][col("noise_levels")]) >= 0);  // 64x36: texture reads as noise
+        CHECK(std::stod(rows[i][col("oracle_gain")]) >=
+              std::max(0.0, std::stod(rows[i][col("model_gain")])) - 0.1);
+        CHECK(std::stod(rows[i][col("radius_err_p90_out")]) >=
+              std::stod(rows[i][col("radius_err_med_out")]));
+    }
+    CHECK(r.output.find("captured") != std::string::npos);
     CHECK(std::stoi(rows[1][col("steps")]) == 20);
     CHECK(std::stoi(rows[1][col("frames")]) == 6);
     CHECK(std::stoi(rows[1][col("worst_frame")]) >= 0);

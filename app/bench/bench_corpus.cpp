@@ -43,6 +43,12 @@ struct ClipResult {
     // Colour shift: the largest channel's |mean − the truth's mean| over the scored frames, in
     // 8-bit sRGB codes (#35's target on a clip already in focus: 0.5).
     double in_shift = kNaN, out_shift = kNaN;
+    // The output rules' yardstick (#51): the clip's measured noise (levels), the model's plate
+    // alone and the oracle blend (bench_eval.h), mean PSNR over the scored frames.
+    double noise = kNaN, model_psnr = kNaN, oracle_psnr = kNaN;
+    // The radius estimate against the clip's true coc: median and 90th percentile of |r^ - r|
+    // (px) inside and outside the subject's mask (outside: every pixel without a mask).
+    double rad_med_in = kNaN, rad_p90_in = kNaN, rad_med_out = kNaN, rad_p90_out = kNaN;
 };
 
 std::string pass_file(const fs::path& dir, const char* pass, int t, const char* ext) {
@@ -166,6 +172,46 @@ void score_frames(const CorpusClip& c, const EvalFrames& f, ClipResult& r) {
     if (n[1] > 0) r.in_outside = sum[2] / n[1], r.out_outside = sum[3] / n[1];
 }
 
+// The oracle blend and the model's plate alone, mean PSNR over the scored frames.
+void score_oracle(const EvalFrames& f, ClipResult& r) {
+    if (f.model.empty()) return;
+    double m = 0, o = 0;
+    for (size_t i = 0; i < f.model.size(); ++i) {
+        m += std::min(100.0, psnr(f.model[i], f.gt[i]));
+        o += oracle_blend_psnr(f.model[i], f.input[i], f.gt[i]);
+    }
+    r.model_psnr = m / double(f.model.size());
+    r.oracle_psnr = o / double(f.model.size());
+}
+
+// |r^ - r| over the clip (the fit's radius maps against coc_%04d.exr), split by the mask.
+void score_radius(const CorpusClip& c, const FitEngine& engine, ClipResult& r) {
+    const torch::Tensor& est = engine.data().radius;  // [T,H,W] px
+    if (!est.defined() || !fs::exists(pass_file(c.dir, "coc", 0, "exr"))) return;
+    std::vector<float> in, out;
+    for (int t = 0; t < c.frames; t += std::max(1, c.frames / 10)) {
+        const Image truth = read_image_file(pass_file(c.dir, "coc", t, "exr"), false).image;
+        if (truth.width != c.width || truth.height != c.height) continue;
+        Image mask;
+        if (c.has_alpha) mask = read_image_file(pass_file(c.dir, "alpha", t, "png"), false).image;
+        const torch::Tensor e = est[t].contiguous().to(torch::kFloat32);
+        const float* ep = e.data_ptr<float>();
+        for (int p = 0; p < c.width * c.height; ++p) {
+            const float d = std::abs(ep[p] - truth.pixels[size_t(p) * truth.channels]);
+            const bool inside = c.has_alpha && mask.pixels[size_t(p) * mask.channels] >= 0.5f;
+            (inside ? in : out).push_back(d);
+        }
+    }
+    auto q = [](std::vector<float>& v, double share) {
+        if (v.empty()) return kNaN;
+        const size_t k = std::min(v.size() - 1, size_t(share * double(v.size())));
+        std::nth_element(v.begin(), v.begin() + k, v.end());
+        return double(v[k]);
+    };
+    r.rad_med_in = q(in, 0.5), r.rad_p90_in = q(in, 0.9);
+    r.rad_med_out = q(out, 0.5), r.rad_p90_out = q(out, 0.9);
+}
+
 // Fits one clip in a scratch project under the system's temp folder and scores it.
 ClipResult fit_clip(const CorpusClip& c, FitSettings s, bool oracle, const std::string& label) {
     ScratchDir work{make_temp_dir_beside(fs::temp_directory_path() /
@@ -193,6 +239,9 @@ ClipResult fit_clip(const CorpusClip& c, FitSettings s, bool oracle, const std::
     EvalFrames frames;
     r.row = evaluate(engine, gt, input, &frames);
     score_frames(c, frames, r);
+    score_oracle(frames, r);
+    score_radius(c, engine, r);
+    r.noise = data->noise_levels >= 0 ? data->noise_levels : kNaN;
     return r;
 }
 
@@ -231,6 +280,14 @@ enum Fig {
     kTargetWorst,
     kTargetTpsnr,
     kTargetSsim,
+    kNoise,
+    kModelGain,
+    kOracleGain,
+    kCaptured,
+    kRadMedIn,
+    kRadP90In,
+    kRadMedOut,
+    kRadP90Out,
     kFigCount
 };
 using Figures = std::array<double, kFigCount>;
@@ -238,28 +295,15 @@ using Figures = std::array<double, kFigCount>;
 Figures figures_of(const CorpusClip& c, const ClipResult& r) {
     const EvalRow& x = r.row;
     const Targets t = targets_of(r);
-    return {double(c.frames),
-            double(x.frames_done),
-            x.in_psnr,
-            x.psnr,
-            x.psnr - x.in_psnr,
-            x.in_ssim,
-            x.ssim,
-            x.in_tpsnr,
-            x.tpsnr,
-            r.worst_gain,
-            r.in_inside,
-            r.out_inside,
-            r.in_outside,
-            r.out_outside,
-            r.in_shift,
-            r.out_shift,
-            double(x.step),
-            x.minutes * 60,
-            double(t.gain),
-            double(t.worst),
-            double(t.tpsnr),
-            double(t.ssim)};
+    return {double(c.frames), double(x.frames_done), x.in_psnr, x.psnr, x.psnr - x.in_psnr,
+            x.in_ssim, x.ssim, x.in_tpsnr, x.tpsnr, r.worst_gain, r.in_inside, r.out_inside,
+            r.in_outside, r.out_outside, r.in_shift, r.out_shift, double(x.step), x.minutes * 60,
+            double(t.gain), double(t.worst), double(t.tpsnr), double(t.ssim), r.noise,
+            r.model_psnr - x.in_psnr, r.oracle_psnr - x.in_psnr,
+            // The share of the oracle blend's gain the output captures, where there is one.
+            r.oracle_psnr - x.in_psnr >= 0.5 ? (x.psnr - x.in_psnr) / (r.oracle_psnr - x.in_psnr)
+                                             : kNaN,
+            r.rad_med_in, r.rad_p90_in, r.rad_med_out, r.rad_p90_out};
 }
 
 // The mean of each figure over the clips where it is defined (NaN where it is nowhere).
@@ -354,7 +398,8 @@ std::string csv_text(const Run& run, const std::vector<CorpusClip>& clips,
         "in_tpsnr,out_tpsnr,worst_gain,worst_frame,in_psnr_inside,out_psnr_inside,"
         "in_psnr_outside,out_psnr_outside,in_colour_shift,out_colour_shift,steps,fit_s,target_gain,"
         "target_worst,target_tpsnr,"
-        "target_ssim,preset,radius\n";
+        "target_ssim,noise_levels,model_gain,oracle_gain,captured,radius_err_med_in,"
+        "radius_err_p90_in,radius_err_med_out,radius_err_p90_out,preset,radius\n";
     const std::string tail = run.preset + "," + (run.oracle ? "oracle" : "estimated");
     std::vector<Figures> all;
     for (size_t i = 0; i < results.size(); ++i) {
@@ -366,6 +411,28 @@ std::string csv_text(const Run& run, const std::vector<CorpusClip>& clips,
     }
     if (!all.empty()) csv += csv_row("mean," + run.split + ",,", mean_of(all), "", tail);
     return csv;
+}
+
+// The output rules against the oracle blend, and the radius estimate against the truth.
+void print_yardstick(int name_w, const std::vector<CorpusClip>& clips,
+                     const std::vector<Figures>& all, const Figures& mean) {
+    std::printf("\n%-*s | %6s | %6s %6s %6s %8s | %s\n", name_w, "clip", "noise", "output", "model",
+                "oracle", "captured", "radius error px: median / p90 in mask, outside");
+    auto row = [&](const std::string& name, const Figures& f) {
+        std::printf("%-*s | %6s | %6s %6s %6s %8s | %s / %s, %s / %s\n", name_w, name.c_str(),
+                    num(f[kNoise], "%.2f").c_str(), num(f[kGain], "%+.2f").c_str(),
+                    num(f[kModelGain], "%+.2f").c_str(), num(f[kOracleGain], "%+.2f").c_str(),
+                    num(100 * f[kCaptured], "%.0f%%").c_str(), num(f[kRadMedIn], "%.2f").c_str(),
+                    num(f[kRadP90In], "%.2f").c_str(), num(f[kRadMedOut], "%.2f").c_str(),
+                    num(f[kRadP90Out], "%.2f").c_str());
+    };
+    for (size_t i = 0; i < all.size(); ++i) row(clips[i].name, all[i]);
+    row("mean", mean);
+    std::printf(
+        "noise: measured sigma (8-bit levels); output, model, oracle: PSNR gain over the input of "
+        "the output as exported, of the model's plate alone (no output rule), and of the oracle "
+        "blend (per pixel the better of input and model, chosen with the truth); captured: "
+        "output gain / oracle gain where that is >= 0.5 dB\n");
 }
 
 void print_table(const Run& run, const std::vector<CorpusClip>& clips,
@@ -400,6 +467,7 @@ void print_table(const Run& run, const std::vector<CorpusClip>& clips,
     std::printf(
         "worst frame: the lowest per-frame output PSNR less input PSNR; inside/outside mask: PSNR "
         "over the pixels where the clip's alpha is >= 0.5 / < 0.5; 100 dB: exact (the cap)\n");
+    print_yardstick(name_w, clips, all, mean);
 }
 
 // --views: no fit; each clip's sharpest-view bound (views_bound.h), a table and a CSV.

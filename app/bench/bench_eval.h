@@ -23,8 +23,15 @@ struct EvalRow {
 // the frames done (`index` holds their frame numbers).
 struct EvalFrames {
     std::vector<Image> sharp, gt, input;
+    std::vector<Image> model;  // the model's plate alone: no output rule, no low-frequency lock
     std::vector<int> index;
 };
+
+// The oracle blend (the yardstick of the output rules): per pixel the better of the input and
+// the model's plate, chosen with the truth (squared errors in sRGB levels box-averaged over 3x3
+// px, the 0/1 choice box-averaged over 3x3 px), blended in sRGB. Its PSNR is the most any rule
+// that mixes the two can give this model. Linear frames in; the blend's PSNR (dB) out.
+double oracle_blend_psnr(const Image& model, const Image& input, const Image& gt);
 
 // Figures over the frames the fit has produced. `perframe` deconvolves one frame per step and
 // may run out of time before the last: the frames not reached still hold the input, so they

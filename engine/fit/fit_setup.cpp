@@ -17,6 +17,7 @@
 #include "io/tensor_image.h"
 #include "io/image_file.h"
 #include "ops/lens_blur.h"
+#include "prepare/noise.h"
 #include "prepare/prepare.h"
 #include "prepare/proxy.h"
 #include "util/mapped.h"
@@ -254,6 +255,12 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             frames.push_back(std::move(f));
     }
     debug_memory("setup: frames read");
+    {
+        const bool stored = project.sections.contains("noise");
+        const NoiseEstimate noise = project_noise(project);
+        d->noise_levels = noise.measured() ? noise.mean() : -1.0;
+        log.info("noise: " + noise.describe() + (stored ? "" : " (measured now)"));
+    }
     if (px.active())
         log.info("prepare: on " + std::to_string(px.width) + "x" + std::to_string(px.height) +
                  " proxies (prepare.proxy_width), scaled up to " + std::to_string(project.width) +

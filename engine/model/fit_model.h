@@ -37,6 +37,9 @@ struct FitData {
     // Share of the wall (one layer: the frame) whose estimated radius holds over the clip: focus
     // never changed there, and the radius is the absolute floor (stack_coc.h). 0 with --coc.
     double fixed_focus_share = 0;
+    // The clip's measured noise, σ in 8-bit sRGB levels averaged over the channels
+    // (prepare/noise.h); < 0: not measured. The output rules test the residual against it.
+    double noise_levels = -1;
     // The radius came as maps (`--coc`: an oracle or a depth-derived map), not the estimate.
     bool radius_given = false;
     // Atlas texels per frame pixel (choose_atlas_scale, fit_setup.h; a checkpoint keeps its own).

@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "io/image_file.h"
+#include "prepare/noise.h"
 #include "util/error.h"
 #include "util/json_file.h"
 
@@ -233,6 +234,7 @@ Project Project::from_json(const json& j, const fs::path& dir, const std::string
             p.sections[it.key()] = it.value();
     }
     validate_fit_section(p, label);
+    if (p.sections.contains("noise")) NoiseEstimate::from_json(p.sections["noise"], label);
     return p;
 }
 
@@ -421,6 +423,10 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
     // or interrupted ingest leaves no partial project.
     const fs::path tmp = make_temp_dir_beside(fs::absolute(dir).lexically_normal());
     try {
+        // The noise is measured on the ingested frames (before the cache's half precision).
+        const std::vector<int> sample = noise_sample_frames(info.frames);
+        const double rounding = source_rounding_var(info.source_format);
+        std::vector<std::array<double, 3>> noise(sample.size(), {{-1, -1, -1}});
         Project staged = p;
         staged.dir = tmp;
         std::error_code ec;
@@ -433,6 +439,9 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
         write_frames_threaded(
             *reader, info.frames,
             [&](int i, const Image& f) {
+                const auto at = std::find(sample.begin(), sample.end(), i);
+                if (at != sample.end())  // each frame written by one thread: its own slot
+                    noise[size_t(at - sample.begin())] = frame_noise_levels(f, rounding);
                 try {
                     write_image_file(staged.frame_path(i).string(), f, cache_format, false, "piz");
                 } catch (const Error& e) {
@@ -443,6 +452,9 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
                 }
             },
             progress);
+        const NoiseEstimate n = combine_frame_noise(noise);
+        if (n.measured()) staged.sections["noise"] = n.to_json();
+        p.sections = staged.sections;
         staged.save();
         publish_dir(tmp, dir, {Project::kFileName});
     } catch (...) {
