@@ -14,6 +14,11 @@ uniform sampler2D u_background_uv_tx;     // RG, frame size
 uniform sampler2D u_foreground_uv_tx;     // RG, frame size
 uniform sampler2D u_alpha_tx;             // R, frame size
 uniform int u_has_foreground;             // 0: one-layer clip, F = 0, α = 0
+// What the exported plate adds to each layer over the sampled atlas (the output rules and the
+// low-frequency lock): RGB, frame size; u_has_fix 0: none.
+uniform sampler2D u_background_fix_tx;
+uniform sampler2D u_foreground_fix_tx;
+uniform int u_has_fix;
 
 layout(location = 0) out vec4 o_composite;   // (C, 1)
 layout(location = 1) out vec4 o_background;  // (B, 1)
@@ -27,6 +32,14 @@ void main() {
     if (u_has_foreground != 0) {
         f = sample_atlas(u_foreground_atlas_tx, texelFetch(u_foreground_uv_tx, p, 0).rg);
         a = clamp01(finite_or_zero(texelFetch(u_alpha_tx, p, 0).r));
+    }
+    if (u_has_fix != 0) {
+        vec3 fb = texelFetch(u_background_fix_tx, p, 0).rgb;
+        vec3 ff = texelFetch(u_foreground_fix_tx, p, 0).rgb;
+        for (int k = 0; k < 3; ++k) {
+            b[k] += finite_or_zero(fb[k]);
+            if (u_has_foreground != 0) f[k] += finite_or_zero(ff[k]);
+        }
     }
     vec3 c;
     for (int k = 0; k < 3; ++k) c[k] = a * f[k] + (1.0 - a) * b[k];  // eq. 1

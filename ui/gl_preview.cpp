@@ -238,10 +238,11 @@ GlPreview::GlPreview(const std::string& shader_dir) : m_dir(shader_dir) {
 }
 
 GlPreview::~GlPreview() {
-    for (GLuint* t : {&m_bg_atlas, &m_fg_atlas,   &m_bg_uv,     &m_fg_uv,      &m_alpha,
-                      &m_bg_depth, &m_fg_depth,   &m_composite, &m_background, &m_foreground,
-                      &m_prep0[0], &m_prep0[1],   &m_prep1[0],  &m_prep1[1],   &m_tiles[0],
-                      &m_tiles[1], &m_blurred_bg, &m_result,    &m_shape_tx,   &m_area_tx})
+    for (GLuint* t :
+         {&m_bg_atlas, &m_fg_atlas,  &m_bg_uv,      &m_fg_uv,      &m_alpha,      &m_bg_depth,
+          &m_fg_depth, &m_composite, &m_background, &m_foreground, &m_prep0[0],   &m_prep0[1],
+          &m_prep1[0], &m_prep1[1],  &m_tiles[0],   &m_tiles[1],   &m_blurred_bg, &m_result,
+          &m_shape_tx, &m_area_tx,   &m_bg_fix,     &m_fg_fix})
         delete_texture(*t);
     for (GLuint* t :
          {&m_fast_tiles, &m_fast_dilated, &m_half_bg, &m_half_fg, &m_half_alpha, &m_half_sprite[0],
@@ -293,6 +294,7 @@ void GlPreview::set_frame(const Image& background_uv, const Image& foreground_uv
         throw Error("GL preview: the background UV map needs 2 channels");
     const int w = background_uv.width, h = background_uv.height;
     upload(m_bg_uv, background_uv);
+    m_has_fix = false;  // a frame's fix comes with it (set_frame_fix)
     if (m_has_fg_atlas) {
         if (foreground_uv.width != w || foreground_uv.height != h || foreground_uv.channels != 2)
             throw Error("GL preview: the foreground UV map must be 2 channels, frame size");
@@ -303,6 +305,23 @@ void GlPreview::set_frame(const Image& background_uv, const Image& foreground_uv
         m_fg_frame = true;
     }
     ensure_size(w, h);
+    m_need_composite = true;
+}
+
+void GlPreview::set_frame_fix(const Image& background_fix, const Image& foreground_fix) {
+    m_has_fix = !background_fix.empty();
+    if (!m_has_fix) return;
+    if (background_fix.width != m_width || background_fix.height != m_height ||
+        background_fix.channels != 3)
+        throw Error("GL preview: the background fix must be 3 channels, frame size");
+    upload(m_bg_fix, background_fix);
+    if (!foreground_fix.empty()) {
+        if (!foreground_fix.same_shape(background_fix))
+            throw Error("GL preview: the foreground fix must be 3 channels, frame size");
+        upload(m_fg_fix, foreground_fix);
+    } else {
+        upload(m_fg_fix, Image(m_width, m_height, 3));
+    }
     m_need_composite = true;
 }
 
@@ -405,6 +424,9 @@ void GlPreview::render(const PreviewLens& lens, PreviewQuality quality) {
         bind_sampler(m_composite_prog, "u_foreground_uv_tx", 3, m_fg_uv);
         bind_sampler(m_composite_prog, "u_alpha_tx", 4, m_alpha);
         set_int(m_composite_prog, "u_has_foreground", m_has_fg_atlas ? 1 : 0);
+        bind_sampler(m_composite_prog, "u_background_fix_tx", 5, m_has_fix ? m_bg_fix : m_bg_uv);
+        bind_sampler(m_composite_prog, "u_foreground_fix_tx", 6, m_has_fix ? m_fg_fix : m_bg_uv);
+        set_int(m_composite_prog, "u_has_fix", m_has_fix ? 1 : 0);
         draw(m_composite_prog, m_width, m_height, {m_composite, m_background, m_foreground});
         m_need_composite = false;
         m_composited = true;

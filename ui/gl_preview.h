@@ -70,6 +70,9 @@ class GlPreview {
     // render() runs the composite pass. foreground_uv/alpha are ignored without a foreground
     // atlas, so call set_atlases() first.
     void set_frame(const Image& background_uv, const Image& foreground_uv, const Image& alpha);
+    // What the exported plate adds to each layer (composite_layers' fixes, preview.h); empty
+    // images: none. Call after set_frame, which clears it.
+    void set_frame_fix(const Image& background_fix, const Image& foreground_fix);
     // Or: layers already composited (3/3/1 channels); the next render() skips the composite.
     void set_layers(const PreviewLayers& layers);
     // Inverse depth per layer (empty image → the constant). Default: constants 0.
@@ -119,6 +122,8 @@ class GlPreview {
     int m_width = 0, m_height = 0, m_tiles_w = 0, m_tiles_h = 0;
     // inputs
     unsigned int m_bg_atlas = 0, m_fg_atlas = 0, m_bg_uv = 0, m_fg_uv = 0, m_alpha = 0;
+    unsigned int m_bg_fix = 0, m_fg_fix = 0;
+    bool m_has_fix = false;
     unsigned int m_bg_depth = 0, m_fg_depth = 0;
     bool m_has_fg_atlas = false, m_has_bg_depth = false, m_has_fg_depth = false;
     bool m_fg_frame = false;  // foreground UV and alpha uploaded for the current atlases

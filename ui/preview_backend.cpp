@@ -12,7 +12,8 @@ PreviewLayers layers_of(const FrameMaps& m, const EditAtlases& e, int threads) {
     const bool two = !m.fg.empty();
     if (e.bg && !m.uv_bg.empty())
         return composite_layers(*e.bg, m.uv_bg, two && e.fg ? *e.fg : Image(),
-                                two ? m.uv_fg : Image(), two ? m.alpha : Image(), threads);
+                                two ? m.uv_fg : Image(), two ? m.alpha : Image(), threads, m.bg_fix,
+                                two ? m.fg_fix : Image());
     return preview_layers(m);
 }
 
@@ -42,6 +43,7 @@ class GlslPreview : public PreviewBackend {
             m_edits_version = e.version;
         }
         m_gl.set_frame(m.uv_bg, m.uv_fg, m.alpha);
+        m_gl.set_frame_fix(m.bg_fix, m.fg.empty() ? Image() : m.fg_fix);
         PreviewLens l = lens;
         if (depth)
             m_gl.set_depth(*depth);

@@ -48,7 +48,8 @@ FitWorker::ViewFrame half(const FitWorker::ViewFrame& v) {
     o.t = v.t;
     o.atlas_version = v.atlas_version;
     const FrameMaps& m = v.maps;
-    o.maps = {half(m.sharp), half(m.bg), half(m.fg), half(m.alpha), half(m.uv_bg), half(m.uv_fg)};
+    o.maps = {half(m.sharp), half(m.bg),    half(m.fg),     half(m.alpha),
+              half(m.uv_bg), half(m.uv_fg), half(m.bg_fix), half(m.fg_fix)};
     o.radius = half(v.radius);
     return o;
 }
@@ -56,7 +57,8 @@ FitWorker::ViewFrame half(const FitWorker::ViewFrame& v) {
 size_t layer_bytes(const FitWorker::ViewFrame& v) {
     const FrameMaps& m = v.maps;
     size_t n = 0;
-    for (const Image* i : {&m.sharp, &m.bg, &m.fg, &m.alpha, &m.uv_bg, &m.uv_fg, &v.radius})
+    for (const Image* i :
+         {&m.sharp, &m.bg, &m.fg, &m.alpha, &m.uv_bg, &m.uv_fg, &m.bg_fix, &m.fg_fix, &v.radius})
         n += i->pixels.size() * sizeof(float);
     return n;
 }

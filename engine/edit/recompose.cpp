@@ -5,6 +5,8 @@
 
 #include <torch/torch.h>
 
+#include <mutex>
+
 #include "fit/fit_engine.h"
 #include "io/tensor_image.h"
 #include "util/error.h"
@@ -21,8 +23,31 @@ FrameMaps frame_maps(FitEngine& engine, int t, const torch::Tensor& bg_delta,
     Layers L = engine.render_frame(t);  // holds model_mutex() while it renders
     const Layers model = L;
     apply_edits(L, bg_delta, fg_delta);
+    const Layers edited = L;
     engine.apply_fallback(L, t, &model);
-    return frame_maps(L);
+    FrameMaps m = frame_maps(L);
+    if (!engine.has_atlas() || m.uv_bg.empty() || !L.bg.defined()) return m;
+    // A preview samples the (edited) atlases itself: the fix is what export's plate adds over
+    // that, the output rules' change plus the engine's own sampling (prefilter, warps) over a
+    // bilinear tap of the model's atlases. The preview then draws the exported plate, and paint
+    // on the atlas shows on top as it does in the export.
+    Image bg_atlas, fg_atlas;
+    {
+        std::lock_guard<std::mutex> lock(engine.model_mutex());
+        bg_atlas = tensor_to_image(engine.model().atlas_bg().contiguous());
+        const torch::Tensor fg = engine.model().atlas_fg();
+        if (fg.defined() && !m.fg.empty()) fg_atlas = tensor_to_image(fg.contiguous());
+    }
+    const bool two = !fg_atlas.empty();
+    const PreviewLayers sampled = composite_layers(
+        bg_atlas, m.uv_bg, fg_atlas, two ? m.uv_fg : Image(), two ? m.alpha : Image());
+    auto fix = [](const torch::Tensor& out, const torch::Tensor& edit, const torch::Tensor& base,
+                  const Image& tap) {
+        return tensor_to_image(((out - edit)[0] + (base[0] - image_to_tensor(tap))).contiguous());
+    };
+    m.bg_fix = fix(L.bg, edited.bg, model.bg, sampled.background);
+    if (two) m.fg_fix = fix(L.fg, edited.fg, model.fg, sampled.foreground);
+    return m;
 }
 
 Image confidence_image(const FitEngine& engine, int t) {

@@ -13,8 +13,13 @@ class FitEngine;
 
 // Frame t's maps as images (all the frame's size): sharp 3, bg 3, fg 3, alpha 1, uv_bg 2, uv_fg 2
 // channels; fg, alpha and uv_fg are empty for a one-layer clip.
+// bg_fix / fg_fix (3 channels; empty: none): what the exported plate adds to each layer over
+// the layer the atlases give (the output rules and the low-frequency lock, FitEngine::
+// apply_fallback), for a preview that samples the atlases itself (render/preview.h,
+// composite_layers) to show what export writes.
 struct FrameMaps {
     Image sharp, bg, fg, alpha, uv_bg, uv_fg;
+    Image bg_fix, fg_fix;
 };
 
 // Renders frame t (the engine locks its model for the render; no gradients).

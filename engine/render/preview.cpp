@@ -276,7 +276,8 @@ float preview_radius(float invdepth, const PreviewLens& lens) {
 
 PreviewLayers composite_layers(const Image& background_atlas, const Image& background_uv,
                                const Image& foreground_atlas, const Image& foreground_uv,
-                               const Image& alpha, int threads) {
+                               const Image& alpha, int threads, const Image& background_fix,
+                               const Image& foreground_fix) {
     if (background_atlas.empty() || background_atlas.channels < 3)
         throw Error("preview: the background atlas needs >= 3 channels");
     if (background_uv.empty() || background_uv.channels != 2)
@@ -289,6 +290,9 @@ PreviewLayers composite_layers(const Image& background_atlas, const Image& backg
         check_image(foreground_uv, w, h, 2, "foreground UV map");
         check_image(alpha, w, h, 1, "alpha map");
     }
+    const bool bg_fix = !background_fix.empty(), fg_fix = has_fg && !foreground_fix.empty();
+    if (bg_fix) check_image(background_fix, w, h, 3, "background fix");
+    if (fg_fix) check_image(foreground_fix, w, h, 3, "foreground fix");
     PreviewLayers out;
     out.composite = Image(w, h, 3);
     out.background = Image(w, h, 3);
@@ -308,6 +312,8 @@ PreviewLayers composite_layers(const Image& background_atlas, const Image& backg
                     a = clamp01(finite_or_zero(alpha.at(x, y, 0)));
                 }
                 for (int c = 0; c < 3; ++c) {
+                    if (bg_fix) b[c] += finite_or_zero(background_fix.at(x, y, c));
+                    if (fg_fix) f[c] += finite_or_zero(foreground_fix.at(x, y, c));
                     out.composite.at(x, y, c) = a * f[c] + (1.0f - a) * b[c];  // eq. 1
                     out.background.at(x, y, c) = b[c];
                     out.foreground.at(x, y, c) = f[c];

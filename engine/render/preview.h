@@ -74,9 +74,14 @@ struct PreviewDepth {
 // map 1 channel, all three the frame's size. `foreground_atlas` may be empty (one-layer clip):
 // then F = 0 and α = 0, and `foreground_uv`/`alpha` are ignored. Throws refocus::Error on
 // mismatched sizes or channel counts.
+// `background_fix` / `foreground_fix` (3 channels, frame size; empty: none) are added to the
+// sampled layers before eq. 1: what the exported plate adds over the atlases (the output rules
+// and the low-frequency lock, FrameMaps in edit/recompose.h), so that the preview shows it.
 PreviewLayers composite_layers(const Image& background_atlas, const Image& background_uv,
                                const Image& foreground_atlas, const Image& foreground_uv,
-                               const Image& alpha, int threads = 1);
+                               const Image& alpha, int threads = 1,
+                               const Image& background_fix = Image(),
+                               const Image& foreground_fix = Image());
 
 // Layered depth of field of `layers` (composite may be empty) → 3 channels, linear light.
 // `threads` splits rows. Throws refocus::Error on a bad lens or mismatched sizes.

@@ -221,6 +221,28 @@ TEST_CASE("composite (paper eq. 1): GPU vs CPU, with NaN/Inf in atlases, UVs and
     compare("composite alpha", cpu.alpha, gpu.alpha, in, 1e-5, 1e-7);
     compare("aperture 0 result == composite", cpu.composite, gp.read_result(), in, 1e-5, 1e-7);
 
+    // The exported plate's fix on each layer (the output rules), non-finite texels as 0.
+    {
+        Image bg_fix = random_image(kW, kH, 3, 16, -0.3f, 0.3f);
+        Image fg_fix = random_image(kW, kH, 3, 17, -0.3f, 0.3f);
+        bg_fix.at(2, 2, 0) = kNaN;
+        fg_fix.at(3, 2, 1) = kInf;
+        const PreviewLayers cf =
+            composite_layers(bg_atlas, bg_uv, fg_atlas, fg_uv, alpha, 1, bg_fix, fg_fix);
+        gp.set_frame(bg_uv, fg_uv, alpha);
+        gp.set_frame_fix(bg_fix, fg_fix);
+        gp.render(sharp);
+        const PreviewLayers gf = gp.read_layers();
+        compare("fixed composite C", cf.composite, gf.composite, in, 1e-5, 1e-7);
+        compare("fixed composite F", cf.foreground, gf.foreground, in, 1e-5, 1e-7);
+        CHECK(cf.background.at(2, 2, 0) == cpu.background.at(2, 2, 0));
+        CHECK(std::abs(cf.background.at(5, 5, 2) - cpu.background.at(5, 5, 2) -
+                       bg_fix.at(5, 5, 2)) < 1e-6);
+        gp.set_frame(bg_uv, fg_uv, alpha);  // a new frame clears the fix
+        gp.render(sharp);
+        compare("fix cleared", cpu.composite, gp.read_layers().composite, in, 1e-5, 1e-7);
+    }
+
     // Defined behaviour of the CPU twin (and so of the shader): the texel-centre convention,
     // non-finite alpha → 0, NaN UV → 0 (the atlas centre), non-finite texel → 0.
     CHECK(cpu.background.at(10, 10, 2) == bg_atlas.at(7, 3, 2));
