@@ -1,6 +1,7 @@
 // refocus fit / refocus export
 #include <unistd.h>
 
+#include <chrono>
 #include <csignal>
 #include <cstdio>
 
@@ -18,6 +19,16 @@ namespace refocus {
 namespace {
 
 volatile std::sig_atomic_t g_interrupted = 0;
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) {
+    return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+std::string fixed1(double v) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%.1f", v);
+    return b;
+}
 
 // A progress bar on a terminal, plain lines (every ~10 s) when not.
 class Progress {
@@ -54,6 +65,7 @@ class Progress {
 }  // namespace
 
 int cmd_fit(int argc, char** argv) {
+    const Clock::time_point started = Clock::now();
     Args a(argc, argv, 2, {"resume", "reprepare", "list-settings"});
     a.check_known({"preset", "minutes", "iters", "coc", "mask", "seed", "resume", "batch",
                    "checkpoint-seconds", "reprepare", "set", "list-settings"});
@@ -103,8 +115,11 @@ int cmd_fit(int argc, char** argv) {
         [&](const std::string& name, double begin, double) { prep.update(begin, name, true); });
     auto data = build_fit_data(project, s.setup, log);
     prep.done("ready");
+    const double prep_s = seconds_since(started);
     FitEngine engine(data, s.fit);
     for (const auto& line : engine.model_notes()) log.info(line);
+    const double setup_s = seconds_since(started) - prep_s;
+    log.info("set-up: preparation " + fixed1(prep_s) + " s, model " + fixed1(setup_s) + " s");
     const fs::path dir = fit_dir(project);
     if (resume) {
         if (!FitEngine::has_checkpoint(dir))
@@ -117,6 +132,18 @@ int cmd_fit(int argc, char** argv) {
         std::fprintf(
             stderr,
             "note: starting over (the previous fit is replaced; use --resume to continue it)\n");
+    }
+    // The budget is what the user waits for: preparation and set-up count in it, and a second is
+    // kept for the last checkpoint (a tenth of the budget is trained at least).
+    if (s.fit.minutes > 0) {
+        const double spent = seconds_since(started) + 1.0;
+        const double train_min = std::max(s.fit.minutes - spent / 60.0, 0.1 * s.fit.minutes);
+        engine.set_time_budget(train_min);  // on --resume: the total, as the budget always was
+        std::fprintf(stderr,
+                     "budget %.2f min: %.0f s went to preparation and set-up; the fit trains %s "
+                     "%.0f s\n",
+                     s.fit.minutes, spent - 1.0, resume ? "until, in all," : "for",
+                     train_min * 60.0);
     }
     // The settings reach project.json with the first checkpoint (they say how to resume it):
     // a fit that fails before one (a full disk) leaves project.json as it was.

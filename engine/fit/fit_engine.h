@@ -116,6 +116,9 @@ class FitEngine {
     // other presets: always true.
     bool frame_done(int t) const { return m_model->frame_done(t); }
     void request_stop() { m_stop = true; }
+    // Sets the time budget (minutes of training; the learning-rate schedule follows it): a
+    // caller that counts its own preparation and set-up in the user's budget gives the rest.
+    void set_time_budget(double minutes) { m_opts.minutes = minutes; }
     void set_paused(bool p) { m_paused = p; }
     bool paused() const { return m_paused; }
     FitSnapshot snapshot() const;

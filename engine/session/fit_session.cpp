@@ -12,6 +12,7 @@
 #include "io/clip.h"
 #include "io/image_file.h"
 #include "util/error.h"
+#include "util/json_file.h"
 
 namespace refocus {
 
@@ -88,6 +89,26 @@ void write_fit_settings(Project& p, const FitSettings& s, const FitSnapshot* sna
     p.save_merged({"fit"});
 }
 
+namespace {
+// Whether the checkpoint in `dir` holds its atlases' geometry (the fast model's placement and
+// alignment): then the model's set-up need not align the frames again, the checkpoint's
+// geometry replaces whatever it would find. Checkpoints from before per-tensor checksums are
+// not known to: they get the full set-up.
+bool checkpoint_holds_geometry(const fs::path& dir) {
+    try {
+        const nlohmann::json j = read_json_file((dir / "checkpoint.json").string());
+        const auto sums = j.find("checksums");
+        if (sums == j.end() || !sums->is_object() || !sums->contains("model/bg_to_atlas"))
+            return false;
+        bool fg = false;
+        for (const auto& [name, v] : sums->items()) fg = fg || name.rfind("model/fg_", 0) == 0;
+        return !fg || sums->contains("model/fg_to_atlas");
+    } catch (const std::exception&) {
+        return false;  // load_checkpoint says what is wrong
+    }
+}
+}  // namespace
+
 std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
     if (!FitEngine::has_checkpoint(fit_dir(p)))
         throw Error(file_error(p.project_file().string(),
@@ -96,6 +117,10 @@ std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
     FitSettings s = read_fit_settings(p);
     auto data = build_fit_data(p, s.setup, log);
     if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.iters = 1;
+    // ECC alignment is most of the set-up before a fitted project's first frame, and the
+    // checkpoint's geometry replaces what it finds (these settings are not stored).
+    if (s.fit.preset == "fast" && checkpoint_holds_geometry(fit_dir(p)))
+        s.fit.settings.set("fast.align_rounds", "0");
     auto engine = std::make_unique<FitEngine>(data, s.fit);
     engine->load_checkpoint(fit_dir(p));
     return engine;
