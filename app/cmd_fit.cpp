@@ -8,6 +8,7 @@
 #include "args.h"
 #include "commands.h"
 #include "progress.h"
+#include "prepare/noise.h"
 #include "edit/atlas_edit.h"
 #include "session/fit_session.h"
 #include "util/error.h"
@@ -192,6 +193,8 @@ int cmd_export(int argc, char** argv) {
                                "give --out a folder"));
     if (what != "all") parse_export_pass(what);  // an unknown pass is refused before the work
     check_export_target(project, out);           // before the (slow) opening of the fit
+    if (project.sections.contains("noise"))
+        std::printf("noise: %s\n", project_noise(project).describe().c_str());
     PrepareLog log;
     auto engine = open_fitted(project, log);
     const ProjectEdits edits = ProjectEdits::load(project);  // atlas edits follow every frame

@@ -8,6 +8,7 @@
 #include <cstdio>
 
 #include "item_tip.h"
+#include "prepare/noise.h"
 #include "session/fit_session.h"
 #include "studio_context.h"
 #include "studio_presets.h"
@@ -206,6 +207,20 @@ void draw_fit_panel(FitPanelState& p, StudioContext& ctx) {
             "goes on from it).");
     }
     ImGui::Separator();
+    // The clip's noise, as refocus new measured it (not measured again here: the UI thread).
+    const Project& project = ctx.doc.project();
+    if (project.sections.contains("noise")) {
+        try {
+            const NoiseEstimate n =
+                NoiseEstimate::from_json(project.sections.at("noise"), "project.json");
+            ImGui::Text("clip noise: %s", n.describe().c_str());
+            item_tip(
+                "Measured when the clip was ingested: the standard deviation of its noise in "
+                "8-bit levels, where the frames are flat. After H.264 it is the noise the codec "
+                "left.");
+        } catch (const std::exception&) {
+        }
+    }
     const FitSnapshot& s = st.snap;
     ImGui::Text("state: %s%s", state_name(st.state),
                 st.busy ? ("  (" + st.busy_what + ")").c_str() : "");
