@@ -9,6 +9,7 @@ int cmd_fit(int argc, char** argv);
 int cmd_export(int argc, char** argv);
 int cmd_atlas(int argc, char** argv);  // app/cmd_atlas.cpp
 int cmd_synth(int argc, char** argv);
+int cmd_batch(int argc, char** argv);     // refocus batch plan|run|status (app/cmd_batch.cpp)
 int bench_fit(int argc, char** argv);     // refocus bench fit (app/bench_fit.cpp)
 int bench_kernel(int argc, char** argv);  // refocus bench kernel (app/bench_kernel.cpp)
 int bench_bound(int argc, char** argv);   // refocus bench bound (app/bench_bound.cpp)
