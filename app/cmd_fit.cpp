@@ -117,6 +117,9 @@ int cmd_fit(int argc, char** argv) {
     auto data = build_fit_data(project, s.setup, log);
     prep.done("ready");
     const double prep_s = seconds_since(started);
+    // The model's set-up (alignment, fused atlases) says nothing while it runs: say it starts.
+    std::fprintf(stderr, "set-up: building the %s model over %d frames\n", s.fit.preset.c_str(),
+                 project.frames);
     FitEngine engine(data, s.fit);
     for (const auto& line : engine.model_notes()) log.info(line);
     const double setup_s = seconds_since(started) - prep_s;
