@@ -213,11 +213,11 @@ void draw_fit_panel(FitPanelState& p, StudioContext& ctx) {
         try {
             const NoiseEstimate n =
                 NoiseEstimate::from_json(project.sections.at("noise"), "project.json");
-            ImGui::Text("clip noise: %s", n.describe().c_str());
-            item_tip(
-                "Measured when the clip was ingested: the standard deviation of its noise in "
-                "8-bit levels, where the frames are flat. After H.264 it is the noise the codec "
-                "left.");
+            ImGui::Text("clip noise: sigma %.2f levels", n.mean());
+            item_tip(("Measured when the clip was ingested: the standard deviation of its noise "
+                      "in 8-bit levels, where the frames are flat (" +
+                      n.describe() + "). After H.264 it is the noise the codec left.")
+                         .c_str());
         } catch (const std::exception&) {
         }
     }
