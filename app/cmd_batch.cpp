@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <fstream>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -56,9 +57,101 @@ std::string beside(const fs::path& list, const std::string& p) {
     return (list.parent_path() / p).lexically_normal().string();
 }
 
+// One CSV record's fields (RFC 4180 quoting: "a, b" and "" inside quotes).
+std::vector<std::string> csv_fields(const std::string& line) {
+    std::vector<std::string> out(1);
+    bool quoted = false;
+    for (size_t i = 0; i < line.size(); ++i) {
+        const char c = line[i];
+        if (quoted && c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+            out.back() += '"', ++i;
+        } else if (c == '"') {
+            quoted = !quoted;
+        } else if (c == ',' && !quoted) {
+            out.emplace_back();
+        } else if (c != '\r') {
+            out.back() += c;
+        }
+    }
+    return out;
+}
+
+// A CSV shot list as the JSON one: a header of field names, a row a shot; "set" holds
+// name=value pairs and "exports" what:format:out triples, each separated by ';'.
+nlohmann::json csv_shots(const fs::path& list) {
+    std::ifstream f(list);
+    if (!f) throw Error(file_error(list.string(), "cannot be read"));
+    std::string line;
+    std::vector<std::string> head;
+    nlohmann::json shots = nlohmann::json::array();
+    auto split = [](const std::string& v, char sep) {
+        std::vector<std::string> out;
+        size_t a = 0;
+        for (size_t b; (b = v.find(sep, a)) != std::string::npos; a = b + 1)
+            out.push_back(v.substr(a, b - a));
+        out.push_back(v.substr(a));
+        return out;
+    };
+    for (int n = 1; std::getline(f, line); ++n) {
+        if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+        const auto v = csv_fields(line);
+        if (head.empty()) {
+            head = v;
+            continue;
+        }
+        const std::string at = "line " + std::to_string(n);
+        if (v.size() != head.size())
+            throw Error(file_error(list.string(), at + " has " + std::to_string(v.size()) +
+                                                      " fields, the header " +
+                                                      std::to_string(head.size())));
+        nlohmann::json shot = nlohmann::json::object();
+        for (size_t k = 0; k < v.size(); ++k) {
+            if (v[k].empty()) continue;
+            const std::string& key = head[k];
+            if (key == "minutes" || key == "iters") {
+                try {
+                    size_t used = 0;
+                    const double x = std::stod(v[k], &used);
+                    if (used != v[k].size()) throw std::invalid_argument(v[k]);
+                    if (key == "iters" && x == std::floor(x) && std::abs(x) < 1e15)
+                        shot[key] = (long long)x;
+                    else
+                        shot[key] = x;
+                } catch (const std::exception&) {
+                    shot[key] = v[k];  // refused below, naming the shot and the field
+                }
+            } else if (key == "set") {
+                shot[key] = nlohmann::json::object();
+                for (const auto& a : split(v[k], ';')) {
+                    const auto eq = a.find('=');
+                    if (eq == std::string::npos)
+                        throw Error(file_error(
+                            list.string(), at + ": \"set\" entries are name=value ('" + a + "')"));
+                    shot[key][a.substr(0, eq)] = a.substr(eq + 1);
+                }
+            } else if (key == "exports") {
+                shot[key] = nlohmann::json::array();
+                for (const auto& e : split(v[k], ';')) {
+                    const auto t = split(e, ':');
+                    if (t.size() != 3)
+                        throw Error(file_error(
+                            list.string(),
+                            at + ": \"exports\" entries are what:format:out ('" + e + "')"));
+                    shot[key].push_back({{"what", t[0]}, {"format", t[1]}, {"out", t[2]}});
+                }
+            } else {
+                shot[key] = v[k];
+            }
+        }
+        shots.push_back(shot);
+    }
+    return {{"shots", shots}};
+}
+
 // The whole list, checked before anything runs: every error names the row and the field.
 std::vector<Shot> read_shots(const fs::path& list) {
-    const nlohmann::json j = read_json_file(list.string());
+    const nlohmann::json j =
+        list.extension() == ".csv" ? csv_shots(list) : read_json_file(list.string());
     const std::string L = list.string();
     auto err = [&](int row, const std::string& name, const std::string& field,
                    const std::string& what) {

@@ -48,6 +48,16 @@ TEST_CASE("batch: run two shots at once, skip them when run again, equal to comm
     INFO(r.output);
     REQUIRE(r.code == 0);
     CHECK(r.output.find("refocus fit") != std::string::npos);
+    // The same list as CSV plans the same commands.
+    const fs::path csv = root / "shots.csv";
+    write(csv,
+          "name,clip,project,iters,set,exports\n"
+          "sh010,rack/input_%04d.png,p/sh010,4,fit.crop_px=0,sharp:png:out/sh010\n"
+          ",\"tripod/input_%04d.png\",p/sh020,4,,sharp:mp4:out/sh020.mp4\n");
+    const auto rc = cli("batch plan '" + csv.string() + "'");
+    INFO(rc.output);
+    REQUIRE(rc.code == 0);
+    CHECK(rc.output == r.output);
 
     r = cli("batch run '" + list.string() + "' --jobs 2");
     INFO(r.output);
@@ -121,6 +131,15 @@ TEST_CASE("batch: a bad shot list is refused as a whole, naming the shot and the
         CHECK(r.output.find("shots.json") != std::string::npos);
         CHECK_FALSE(fs::exists(root / "p/a"));  // nothing ran
     }
+    const fs::path csv = root / "shots.csv";
+    write(csv, "clip,project,iters\nc/input_%04d.png,p/a,2\nc/input_%04d.png,p/b\n");
+    auto r = cli("batch plan '" + csv.string() + "'");
+    CHECK(r.code != 0);
+    CHECK(r.output.find("line 3 has 2 fields") != std::string::npos);
+    write(csv, "clip,project,iters\nc/input_%04d.png,p/a,2\nc/input_%04d.png,p/b,two\n");
+    r = cli("batch plan '" + csv.string() + "'");
+    CHECK(r.code != 0);
+    CHECK(r.output.find("shot 2 (b): \"iters\"") != std::string::npos);
     write(list, R"({"shots": []})");
     CHECK(cli("batch run '" + list.string() + "'").code != 0);
     CHECK(cli("batch run '" + list.string() + "' --jobs 0").code != 0);
