@@ -449,7 +449,7 @@ int cmd_batch(int argc, char** argv) {
     a.check_known({"jobs"});
     const auto& pos = a.positional();
     if (pos.size() != 2 || (pos[0] != "plan" && pos[0] != "run" && pos[0] != "status"))
-        throw Error("usage: refocus batch plan|run|status <shots.json> [--jobs N]");
+        throw Error("usage: refocus batch plan|run|status <shots.json|.csv> [--jobs N]");
     const fs::path list = fs::absolute(pos[1]);
     const std::vector<Shot> shots = read_shots(list);
     if (pos[0] == "status") {

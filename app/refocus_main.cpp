@@ -46,7 +46,7 @@ const Command kCommands[] = {
     {"atlas", refocus::cmd_atlas,
      "atlas <project> --import <file> --layer bg|fg | --clear [--layer bg|fg]",
      "bring back a repainted atlas (PNG/TIFF/EXR): the edit follows every frame"},
-    {"batch", refocus::cmd_batch, "batch plan|run|status <shots.json> [--jobs N]",
+    {"batch", refocus::cmd_batch, "batch plan|run|status <shots.json|.csv> [--jobs N]",
      "many shots from a shot list: ingest, fit and export each, N at once; what is done is\n"
      "           skipped, an unfinished fit resumes (docs/method.md, Batches)"},
     {"synth", refocus::cmd_synth,
