@@ -20,6 +20,7 @@
 #include <thread>
 
 #include "args.h"
+#include "batch.h"
 #include "commands.h"
 #include "fit/presets.h"
 #include "fit/settings.h"
@@ -29,21 +30,8 @@
 #include "util/json_file.h"
 
 namespace refocus {
-
+namespace batch {
 namespace {
-
-struct ShotExport {
-    std::string what, format, out;
-};
-
-struct Shot {
-    int row = 0;  // 1-based, as a person counts
-    std::string name, clip, project, preset = "fast", coc, mask;
-    double minutes = 0;
-    long long iters = 0;
-    std::vector<std::string> set;  // name=value
-    std::vector<ShotExport> exports;
-};
 
 std::string fmt(const char* f, double v) {
     char b[64];
@@ -148,7 +136,8 @@ nlohmann::json csv_shots(const fs::path& list) {
     return {{"shots", shots}};
 }
 
-// The whole list, checked before anything runs: every error names the row and the field.
+}  // namespace
+
 std::vector<Shot> read_shots(const fs::path& list) {
     const nlohmann::json j =
         list.extension() == ".csv" ? csv_shots(list) : read_json_file(list.string());
@@ -273,16 +262,6 @@ std::vector<Shot> read_shots(const fs::path& list) {
     return shots;
 }
 
-// What a shot's project holds: its fit's state and figures, read from project.json.
-struct ShotState {
-    bool project = false, fitted = false;  // fitted: done, to this shot's budget and preset
-    bool checkpoint = false;
-    bool resumable = false;  // an unfinished fit of this shot's budget and preset: --resume
-    long long steps = 0;
-    double reblur = NAN;
-    int exports_done = 0;
-};
-
 ShotState state_of(const Shot& s) {
     ShotState st;
     if (!fs::exists(fs::path(s.project) / Project::kFileName)) return st;
@@ -330,11 +309,7 @@ std::vector<std::vector<std::string>> steps_of(const Shot& s, const ShotState& s
     return out;
 }
 
-std::string joined(const std::vector<std::string>& v) {
-    std::string s;
-    for (const auto& a : v) s += (s.empty() ? "" : " ") + a;
-    return s;
-}
+namespace {
 
 // Runs `refocus <args>` with its output appended to `log`; the exit code, and the child's peak
 // resident memory (KiB) in `peak_kb`.
@@ -362,36 +337,33 @@ int run_child(const std::vector<std::string>& args, const fs::path& log, int thr
     return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
 }
 
-struct Outcome {
-    std::string state = "pending";
-    double seconds = 0;
-    long peak_kb = 0;
-};
-
-void print_table(const std::vector<Shot>& shots, const std::vector<Outcome>* outcomes) {
-    std::printf("%-16s %-10s %7s %8s %8s %9s  %s\n", "shot", "state", "steps", "reblur", "time s",
-                "peak MB", "outputs");
+void print_table(const std::vector<Shot>& shots, const std::vector<Outcome>* outcomes,
+                 const std::vector<std::string>& slurm) {
+    const bool with_slurm =
+        std::any_of(slurm.begin(), slurm.end(), [](const std::string& x) { return !x.empty(); });
+    std::printf("%-16s %-10s %7s %8s %8s %9s  %s%s\n", "shot", "state", "steps", "reblur", "time s",
+                "peak MB", with_slurm ? "slurm                   " : "", "outputs");
     for (size_t i = 0; i < shots.size(); ++i) {
         const Shot& s = shots[i];
         const ShotState st = state_of(s);
-        std::string state = outcomes ? (*outcomes)[i].state
-                            : st.fitted && st.exports_done == int(s.exports.size()) ? "done"
-                            : st.fitted                                             ? "fitted"
-                            : st.checkpoint                                         ? "partial"
-                            : st.project                                            ? "ingested"
-                                                                                    : "to do";
-        std::printf("%-16s %-10s %7lld %8s %8s %9s  %d/%zu %s\n", s.name.c_str(), state.c_str(),
+        const std::string state = outcomes ? (*outcomes)[i].state : project_state(s);
+        std::string sl;
+        if (with_slurm) {
+            sl = slurm[i].empty() ? "-" : slurm[i];
+            sl.resize(std::max<size_t>(sl.size() + 1, 24), ' ');
+        }
+        std::printf("%-16s %-10s %7lld %8s %8s %9s  %s%d/%zu %s\n", s.name.c_str(), state.c_str(),
                     st.steps, std::isnan(st.reblur) ? "-" : fmt("%.2f", st.reblur).c_str(),
                     outcomes ? fmt("%.1f", (*outcomes)[i].seconds).c_str() : "-",
                     outcomes && (*outcomes)[i].peak_kb > 0
                         ? fmt("%.0f", (*outcomes)[i].peak_kb / 1024.0).c_str()
                         : "-",
-                    st.exports_done, s.exports.size(), s.project.c_str());
+                    sl.c_str(), st.exports_done, s.exports.size(), s.project.c_str());
     }
 }
 
 int batch_run(const fs::path& list, const std::vector<Shot>& shots, int jobs) {
-    const fs::path logs = list.parent_path() / "batch_logs";
+    const fs::path logs = logs_folder(list);
     fs::create_directories(logs);
     const int cores = std::max(1u, std::thread::hardware_concurrency());
     const int threads = std::max(1, cores / jobs);
@@ -399,44 +371,14 @@ int batch_run(const fs::path& list, const std::vector<Shot>& shots, int jobs) {
     std::atomic<size_t> next{0};
     std::mutex print;
     auto worker = [&] {
-        for (size_t i; (i = next++) < shots.size();) {
-            const Shot& s = shots[i];
-            const auto t0 = std::chrono::steady_clock::now();
-            const auto steps = steps_of(s, state_of(s));
-            const fs::path log = logs / (s.name + ".log");
-            out[i].state = steps.empty() ? "skipped" : "done";
-            for (const auto& step : steps) {
-                {
-                    std::lock_guard<std::mutex> l(print);
-                    std::printf("[%s] %s\n", s.name.c_str(), joined(step).c_str());
-                    std::fflush(stdout);
-                }
-                if (step[0] == "export") {  // an output's folder, as a person would make it
-                    std::error_code ec;
-                    fs::create_directories(fs::path(step.back()).parent_path(), ec);
-                }
-                const int rc = run_child(step, log, threads, &out[i].peak_kb);
-                if (rc != 0) {
-                    out[i].state = "failed";
-                    std::lock_guard<std::mutex> l(print);
-                    std::printf("[%s] %s failed (exit %d): see %s\n", s.name.c_str(),
-                                step[0].c_str(), rc, log.string().c_str());
-                    break;
-                }
-            }
-            out[i].seconds =
-                std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-            std::lock_guard<std::mutex> l(print);
-            std::printf("[%s] %s in %.1f s\n", s.name.c_str(), out[i].state.c_str(),
-                        out[i].seconds);
-            std::fflush(stdout);
-        }
+        for (size_t i; (i = next++) < shots.size();)
+            out[i] = run_shot(shots[i], logs, threads, print, nullptr);
     };
     std::vector<std::thread> pool;
     for (int k = 0; k < std::min<int>(jobs, int(shots.size())); ++k) pool.emplace_back(worker);
     for (auto& t : pool) t.join();
     std::printf("\n");
-    print_table(shots, &out);
+    print_table(shots, &out, {});
     const auto failed =
         std::count_if(out.begin(), out.end(), [](const Outcome& o) { return o.state == "failed"; });
     return failed ? 1 : 0;
@@ -444,16 +386,81 @@ int batch_run(const fs::path& list, const std::vector<Shot>& shots, int jobs) {
 
 }  // namespace
 
+std::string joined(const std::vector<std::string>& v) {
+    std::string s;
+    for (const auto& a : v) s += (s.empty() ? "" : " ") + a;
+    return s;
+}
+
+std::string project_state(const Shot& s) {
+    const ShotState st = state_of(s);
+    return st.fitted && st.exports_done == int(s.exports.size()) ? "done"
+           : st.fitted                                           ? "fitted"
+           : st.checkpoint                                       ? "partial"
+           : st.project                                          ? "ingested"
+                                                                 : "to do";
+}
+
+Outcome run_shot(const Shot& s, const fs::path& logs, int threads, std::mutex& print,
+                 const volatile std::sig_atomic_t* stop) {
+    Outcome out;
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto steps = steps_of(s, state_of(s));
+    const fs::path log = logs / (s.name + ".log");
+    out.state = steps.empty() ? "skipped" : "done";
+    for (const auto& step : steps) {
+        if (stop && *stop) {
+            out.state = "stopped";
+            break;
+        }
+        {
+            std::lock_guard<std::mutex> l(print);
+            std::printf("[%s] %s\n", s.name.c_str(), joined(step).c_str());
+            std::fflush(stdout);
+        }
+        if (step[0] == "export") {  // an output's folder, as a person would make it
+            std::error_code ec;
+            fs::create_directories(fs::path(step.back()).parent_path(), ec);
+        }
+        const int rc = run_child(step, log, threads, &out.peak_kb);
+        if (rc != 0) {
+            out.state = stop && *stop ? "stopped" : "failed";
+            std::lock_guard<std::mutex> l(print);
+            std::printf("[%s] %s %s (exit %d): see %s\n", s.name.c_str(), step[0].c_str(),
+                        out.state.c_str(), rc, log.string().c_str());
+            break;
+        }
+    }
+    out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    std::lock_guard<std::mutex> l(print);
+    std::printf("[%s] %s in %.1f s\n", s.name.c_str(), out.state.c_str(), out.seconds);
+    std::fflush(stdout);
+    return out;
+}
+
+}  // namespace batch
+
 int cmd_batch(int argc, char** argv) {
+    using namespace batch;
+    static const char* usage =
+        "usage: refocus batch plan|run|status|submit <shots.json|.csv> [--jobs N] "
+        "[--partition P] [--account A] [--cpus N] [--time MIN] [--mem MB] [--dry-run]";
+    if (argc < 4) throw Error(usage);
+    const std::string verb = argv[2];
+    const fs::path list = fs::absolute(argv[3]);
+    if (verb == "submit" || verb == "shot") {
+        const std::vector<Shot> shots = read_shots(list);
+        return verb == "submit" ? batch_submit(list, shots, argc, argv)
+                                : batch_shot(list, shots, argc, argv);
+    }
     Args a(argc, argv, 2);
     a.check_known({"jobs"});
     const auto& pos = a.positional();
     if (pos.size() != 2 || (pos[0] != "plan" && pos[0] != "run" && pos[0] != "status"))
-        throw Error("usage: refocus batch plan|run|status <shots.json|.csv> [--jobs N]");
-    const fs::path list = fs::absolute(pos[1]);
+        throw Error(usage);
     const std::vector<Shot> shots = read_shots(list);
     if (pos[0] == "status") {
-        print_table(shots, nullptr);
+        print_table(shots, nullptr, slurm_states(list, shots));
         return 0;
     }
     if (pos[0] == "plan") {

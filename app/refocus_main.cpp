@@ -46,9 +46,12 @@ const Command kCommands[] = {
     {"atlas", refocus::cmd_atlas,
      "atlas <project> --import <file> --layer bg|fg | --clear [--layer bg|fg]",
      "bring back a repainted atlas (PNG/TIFF/EXR): the edit follows every frame"},
-    {"batch", refocus::cmd_batch, "batch plan|run|status <shots.json|.csv> [--jobs N]",
-     "many shots from a shot list: ingest, fit and export each, N at once; what is done is\n"
-     "           skipped, an unfinished fit resumes (docs/method.md, Batches)"},
+    {"batch", refocus::cmd_batch,
+     "batch plan|run|status|submit <shots.json|.csv> [--jobs N]\n"
+     "           submit: [--partition P] [--account A] [--cpus N] [--time MIN] [--mem MB]\n"
+     "           [--max-running K] [--dry-run]",
+     "many shots from a shot list: ingest, fit and export each, N at once here or as a Slurm\n"
+     "           job array; what is done is skipped, an unfinished fit resumes (docs/method.md)"},
     {"synth", refocus::cmd_synth,
      "synth --scene rack|walkout|pan|hunt|tripod|pillar|list -o <dir> [--size WxH] [--frames N] "
      "[--seed S]",
