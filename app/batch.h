@@ -2,10 +2,12 @@
 // A shot list's shots and what each project holds, shared by `refocus batch` here
 // (app/cmd_batch.cpp) and on Slurm (app/cmd_batch_slurm.cpp).
 #include <csignal>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <vector>
 
+#include "session/windows.h"
 #include "util/fs.h"
 
 namespace refocus::batch {
@@ -21,6 +23,10 @@ struct Shot {
     long long iters = 0;
     std::vector<std::string> set;  // name=value
     std::vector<ShotExport> exports;
+    int window = 240, overlap = 16;  // a longer shot is fitted as windows (0: never)
+    int first = 0, last = -1;        // a window's frames of the clip (-1: the whole clip)
+    // The shot's windows once known (windows_of): empty for a shot fitted whole.
+    mutable std::shared_ptr<std::vector<ShotWindow>> windows;
 };
 
 // What a shot's project holds: its fit's state and figures, read from project.json.
@@ -42,6 +48,11 @@ struct Outcome {
 // The whole list, checked before anything runs: every error names the row and the field.
 std::vector<Shot> read_shots(const fs::path& list);
 ShotState state_of(const Shot& s);
+// A shot over its window length is fitted as overlapping windows, each a shot of its own
+// (without exports) in <project>/windows/wNN; `export` stitches them. Known from windows.json
+// once the shot was started, else from the clip's frame count. Empty: fitted whole.
+const std::vector<ShotWindow>& windows_of(const Shot& s);
+std::vector<Shot> window_shots(const Shot& s);
 // The `refocus` commands that finish the shot: what its project lacks.
 std::vector<std::vector<std::string>> steps_of(const Shot& s, const ShotState& st);
 std::string joined(const std::vector<std::string>& v);
@@ -51,8 +62,9 @@ std::string project_state(const Shot& s);
 // Runs the shot's remaining steps as child processes with `threads` threads each, their output
 // appended to <logs>/<name>.log, a line per step on stdout (under `print`). Stops before the
 // next step once `*stop` is set (the step running finishes as it would on SIGTERM).
+// `window` >= 0: only that window's steps (a Slurm array task; the log <name>_wNN.log).
 Outcome run_shot(const Shot& s, const fs::path& logs, int threads, std::mutex& print,
-                 const volatile std::sig_atomic_t* stop);
+                 const volatile std::sig_atomic_t* stop, int window = -1);
 
 // The folder beside the list where `batch` keeps its logs.
 inline fs::path logs_folder(const fs::path& list) {

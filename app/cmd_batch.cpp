@@ -18,6 +18,7 @@
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <thread>
+#include <tuple>
 
 #include "args.h"
 #include "batch.h"
@@ -96,12 +97,12 @@ nlohmann::json csv_shots(const fs::path& list) {
         for (size_t k = 0; k < v.size(); ++k) {
             if (v[k].empty()) continue;
             const std::string& key = head[k];
-            if (key == "minutes" || key == "iters") {
+            if (key == "minutes" || key == "iters" || key == "window" || key == "overlap") {
                 try {
                     size_t used = 0;
                     const double x = std::stod(v[k], &used);
                     if (used != v[k].size()) throw std::invalid_argument(v[k]);
-                    if (key == "iters" && x == std::floor(x) && std::abs(x) < 1e15)
+                    if (key != "minutes" && x == std::floor(x) && std::abs(x) < 1e15)
                         shot[key] = (long long)x;
                     else
                         shot[key] = x;
@@ -153,8 +154,8 @@ std::vector<Shot> read_shots(const fs::path& list) {
                                "a shot list is {\"shots\": [ {\"clip\": ..., \"project\": "
                                "...}, ... ]} with at least one shot"));
     std::vector<Shot> shots;
-    static const char* known[] = {"name",  "clip", "project", "preset", "minutes",
-                                  "iters", "coc",  "mask",    "set",    "exports"};
+    static const char* known[] = {"name", "clip", "project", "preset",  "minutes", "iters",
+                                  "coc",  "mask", "set",     "exports", "window",  "overlap"};
     for (const auto& r : j["shots"]) {
         Shot s;
         s.row = int(shots.size()) + 1;
@@ -163,7 +164,7 @@ std::vector<Shot> read_shots(const fs::path& list) {
             if (std::find(std::begin(known), std::end(known), it.key()) == std::end(known))
                 throw err(s.row, "", it.key(),
                           "is not a field of a shot (name, clip, project, preset, minutes, "
-                          "iters, coc, mask, set, exports)");
+                          "iters, coc, mask, set, exports, window, overlap)");
         auto str = [&](const char* f, bool required) {
             if (!r.contains(f)) {
                 if (required) throw err(s.row, s.name, f, "is missing");
@@ -242,6 +243,19 @@ std::vector<Shot> read_shots(const fs::path& list) {
                 s.exports.push_back(x);
             }
         }
+        for (auto [f, v, lo] : {std::tuple<const char*, int*, int>{"window", &s.window, 0},
+                                {"overlap", &s.overlap, 1}}) {
+            if (!r.contains(f)) continue;
+            if (!r[f].is_number_integer() || r[f].get<long long>() < lo ||
+                r[f].get<long long>() > 1000000)
+                throw err(s.row, s.name, f,
+                          "must be an integer in " + std::to_string(lo) + "..1000000");
+            *v = r[f].get<int>();
+        }
+        if (s.window > 0 && s.window < 2 * s.overlap)
+            throw err(s.row, s.name, "window",
+                      "must be at least twice \"overlap\" (" + std::to_string(s.overlap) +
+                          "), or 0 to fit the shot whole");
         if (!fs::exists(s.clip) && s.clip.find('%') == std::string::npos)
             throw err(s.row, s.name, "clip", "does not exist: " + s.clip);
         shots.push_back(s);
@@ -262,8 +276,71 @@ std::vector<Shot> read_shots(const fs::path& list) {
     return shots;
 }
 
+const std::vector<ShotWindow>& windows_of(const Shot& s) {
+    if (s.windows) return *s.windows;
+    auto w = std::make_shared<std::vector<ShotWindow>>();
+    const fs::path dir = s.project;
+    const std::string at = "shot " + std::to_string(s.row) + " (" + s.name + ")";
+    if (s.last >= 0 || fs::exists(dir / Project::kFileName)) {
+        // a window, or a shot already ingested whole
+    } else if (fs::exists(dir / WindowedShot::kFileName)) {
+        const WindowedShot ws = WindowedShot::load(dir);
+        if (ws.window != s.window || ws.overlap != s.overlap)
+            throw Error(file_error((dir / WindowedShot::kFileName).string(),
+                                   at + " was split into windows of " + std::to_string(ws.window) +
+                                       " frames overlapping by " + std::to_string(ws.overlap) +
+                                       "; the list now says " + std::to_string(s.window) + " and " +
+                                       std::to_string(s.overlap) +
+                                       " (keep them, or remove the shot's project)"));
+        *w = ws.windows;
+    } else if (s.window > 0) {
+        const int frames = ClipReader::open(s.clip)->info().frames;
+        if (frames > s.window) {
+            if (!s.coc.empty() || !s.mask.empty())
+                throw Error(at + ": " + std::to_string(frames) + " frames, over its window of " +
+                            std::to_string(s.window) +
+                            ", and --coc/--mask files count from the clip's first frame: fit it "
+                            "whole (\"window\": 0)");
+            *w = plan_windows(frames, s.window, s.overlap);
+        }
+    }
+    s.windows = w;
+    return *w;
+}
+
+std::vector<Shot> window_shots(const Shot& s) {
+    std::vector<Shot> out;
+    const auto& ws = windows_of(s);
+    for (size_t k = 0; k < ws.size(); ++k) {
+        Shot w = s;
+        w.project = (fs::path(s.project) / ws[k].dir).string();
+        w.name = s.name + "_" + fs::path(ws[k].dir).filename().string();
+        w.exports.clear();
+        w.first = ws[k].first, w.last = ws[k].last;
+        w.windows = std::make_shared<std::vector<ShotWindow>>();
+        out.push_back(w);
+    }
+    return out;
+}
+
 ShotState state_of(const Shot& s) {
     ShotState st;
+    for (const auto& x : s.exports) st.exports_done += fs::exists(x.out);
+    if (!windows_of(s).empty()) {  // the windows' states together
+        st.project = fs::exists(fs::path(s.project) / WindowedShot::kFileName);
+        st.fitted = st.project;
+        double reblur = 0;
+        int n = 0;
+        for (const Shot& w : window_shots(s)) {
+            const ShotState ws = state_of(w);
+            st.fitted = st.fitted && ws.fitted;
+            st.checkpoint = st.checkpoint || ws.checkpoint;
+            st.steps += ws.steps;
+            if (!std::isnan(ws.reblur)) reblur += ws.reblur, ++n;
+        }
+        st.reblur = n ? reblur / n : NAN;
+        return st;
+    }
     if (!fs::exists(fs::path(s.project) / Project::kFileName)) return st;
     st.project = true;
     try {
@@ -283,24 +360,35 @@ ShotState state_of(const Shot& s) {
     } catch (const std::exception&) {
         st.project = false;  // run says why
     }
-    for (const auto& x : s.exports) st.exports_done += fs::exists(x.out);
     return st;
 }
 
 std::vector<std::vector<std::string>> steps_of(const Shot& s, const ShotState& st) {
     std::vector<std::vector<std::string>> out;
-    if (!st.project) out.push_back({"new", s.clip, "-o", s.project});
-    if (!st.fitted) {
-        std::vector<std::string> fit = {"fit", s.project, "--preset", s.preset};
-        if (s.iters > 0)
-            fit.insert(fit.end(), {"--iters", std::to_string(s.iters)});
-        else
-            fit.insert(fit.end(), {"--minutes", fmt("%.17g", s.minutes)});
-        if (!s.coc.empty()) fit.insert(fit.end(), {"--coc", s.coc});
-        if (!s.mask.empty()) fit.insert(fit.end(), {"--mask", s.mask});
-        for (const auto& a : s.set) fit.insert(fit.end(), {"--set", a});
-        if (st.resumable) fit.push_back("--resume");
-        out.push_back(fit);
+    if (!windows_of(s).empty()) {
+        for (const Shot& w : window_shots(s)) {
+            const auto more = steps_of(w, state_of(w));
+            out.insert(out.end(), more.begin(), more.end());
+        }
+    } else {
+        if (!st.project) {
+            out.push_back({"new", s.clip, "-o", s.project});
+            if (s.last >= 0)
+                out.back().insert(out.back().end(), {"--first", std::to_string(s.first), "--last",
+                                                     std::to_string(s.last)});
+        }
+        if (!st.fitted) {
+            std::vector<std::string> fit = {"fit", s.project, "--preset", s.preset};
+            if (s.iters > 0)
+                fit.insert(fit.end(), {"--iters", std::to_string(s.iters)});
+            else
+                fit.insert(fit.end(), {"--minutes", fmt("%.17g", s.minutes)});
+            if (!s.coc.empty()) fit.insert(fit.end(), {"--coc", s.coc});
+            if (!s.mask.empty()) fit.insert(fit.end(), {"--mask", s.mask});
+            for (const auto& a : s.set) fit.insert(fit.end(), {"--set", a});
+            if (st.resumable) fit.push_back("--resume");
+            out.push_back(fit);
+        }
     }
     for (const auto& x : s.exports)
         if (!st.fitted || !fs::exists(x.out))
@@ -371,8 +459,15 @@ int batch_run(const fs::path& list, const std::vector<Shot>& shots, int jobs) {
     std::atomic<size_t> next{0};
     std::mutex print;
     auto worker = [&] {
-        for (size_t i; (i = next++) < shots.size();)
-            out[i] = run_shot(shots[i], logs, threads, print, nullptr);
+        for (size_t i; (i = next++) < shots.size();) {
+            try {
+                out[i] = run_shot(shots[i], logs, threads, print, nullptr);
+            } catch (const std::exception& e) {
+                out[i].state = "failed";
+                std::lock_guard<std::mutex> l(print);
+                std::printf("[%s] failed: %s\n", shots[i].name.c_str(), e.what());
+            }
+        }
     };
     std::vector<std::thread> pool;
     for (int k = 0; k < std::min<int>(jobs, int(shots.size())); ++k) pool.emplace_back(worker);
@@ -402,11 +497,26 @@ std::string project_state(const Shot& s) {
 }
 
 Outcome run_shot(const Shot& s, const fs::path& logs, int threads, std::mutex& print,
-                 const volatile std::sig_atomic_t* stop) {
+                 const volatile std::sig_atomic_t* stop, int window) {
     Outcome out;
     const auto t0 = std::chrono::steady_clock::now();
-    const auto steps = steps_of(s, state_of(s));
-    const fs::path log = logs / (s.name + ".log");
+    const auto& ws = windows_of(s);
+    if (!ws.empty() && !fs::exists(fs::path(s.project) / WindowedShot::kFileName)) {
+        WindowedShot shot;  // the shot's folder: its windows, before any of them is made
+        shot.dir = s.project;
+        shot.clip = fs::absolute(s.clip).string();
+        shot.frames = ws.back().last + 1;
+        shot.window = s.window, shot.overlap = s.overlap;
+        shot.windows = ws;
+        fs::create_directories(shot.dir);
+        shot.save();
+    }
+    if (window >= int(ws.size()))
+        throw Error("shot " + s.name + " has " + std::to_string(ws.size()) + " windows, not " +
+                    std::to_string(window + 1));
+    const Shot unit = window >= 0 ? window_shots(s)[size_t(window)] : s;
+    const auto steps = steps_of(unit, state_of(unit));
+    const fs::path log = logs / (unit.name + ".log");
     out.state = steps.empty() ? "skipped" : "done";
     for (const auto& step : steps) {
         if (stop && *stop) {
@@ -415,7 +525,7 @@ Outcome run_shot(const Shot& s, const fs::path& logs, int threads, std::mutex& p
         }
         {
             std::lock_guard<std::mutex> l(print);
-            std::printf("[%s] %s\n", s.name.c_str(), joined(step).c_str());
+            std::printf("[%s] %s\n", unit.name.c_str(), joined(step).c_str());
             std::fflush(stdout);
         }
         if (step[0] == "export") {  // an output's folder, as a person would make it
@@ -426,14 +536,14 @@ Outcome run_shot(const Shot& s, const fs::path& logs, int threads, std::mutex& p
         if (rc != 0) {
             out.state = stop && *stop ? "stopped" : "failed";
             std::lock_guard<std::mutex> l(print);
-            std::printf("[%s] %s %s (exit %d): see %s\n", s.name.c_str(), step[0].c_str(),
+            std::printf("[%s] %s %s (exit %d): see %s\n", unit.name.c_str(), step[0].c_str(),
                         out.state.c_str(), rc, log.string().c_str());
             break;
         }
     }
     out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     std::lock_guard<std::mutex> l(print);
-    std::printf("[%s] %s in %.1f s\n", s.name.c_str(), out.state.c_str(), out.seconds);
+    std::printf("[%s] %s in %.1f s\n", unit.name.c_str(), out.state.c_str(), out.seconds);
     std::fflush(stdout);
     return out;
 }
@@ -466,8 +576,12 @@ int cmd_batch(int argc, char** argv) {
     if (pos[0] == "plan") {
         for (const Shot& s : shots) {
             const auto steps = steps_of(s, state_of(s));
-            std::printf("shot %d %s: %s\n", s.row, s.name.c_str(),
-                        steps.empty() ? "done, skipped" : "");
+            std::string windows;
+            for (const auto& w : windows_of(s))
+                windows += (windows.empty() ? "in windows of frames " : ", ") +
+                           std::to_string(w.first) + ".." + std::to_string(w.last);
+            std::printf("shot %d %s: %s%s\n", s.row, s.name.c_str(),
+                        steps.empty() ? "done, skipped" : "", windows.c_str());
             for (const auto& st : steps) std::printf("  refocus %s\n", joined(st).c_str());
         }
         return 0;

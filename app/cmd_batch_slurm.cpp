@@ -1,4 +1,4 @@
-// refocus batch submit|shot: a shot list as one Slurm job array. `submit` writes the array's
+// refocus batch submit|shot: a shot list as Slurm job arrays. `submit` writes the array's
 // script beside the list and hands it to `sbatch`; each array task runs `refocus batch shot`,
 // which finishes one shot exactly as `batch run` would (what is done is skipped, a fit that
 // stopped resumes from its checkpoint), so a requeued task picks up where it stopped.
@@ -78,6 +78,11 @@ std::string sh_quote(const std::string& s) {
     return q + "'";
 }
 
+// A task's work: shot `shot` of the list, window `window` of it (-1: the whole shot).
+struct Unit {
+    int shot, window;
+};
+
 fs::path record_of(const fs::path& list) {
     return list.parent_path() / "batch_slurm" / (list.stem().string() + ".json");
 }
@@ -113,87 +118,144 @@ int batch_submit(const fs::path& list, const std::vector<Shot>& shots, int argc,
     for (const char* k : {"partition", "account"})
         if (a.has(k)) check_slurm_word(a, k);
 
-    // The shots still to do, and the largest time and memory among them (one array, one size).
-    std::vector<int> todo;
-    ShotCost need;
+    // The work left, as units (a shot, or one window of a long shot) of two arrays: the fits,
+    // then, after all of them, the stitching exports of the shots fitted as windows.
+    std::vector<Unit> fits, stitches;
+    ShotCost fit_need, stitch_need;
+    auto need = [](ShotCost& n, const ShotCost& k) {
+        n.minutes = std::max(n.minutes, k.minutes);
+        n.mem_mb = std::max(n.mem_mb, k.mem_mb);
+    };
     for (size_t i = 0; i < shots.size(); ++i) {
-        if (steps_of(shots[i], state_of(shots[i])).empty()) continue;
-        todo.push_back(int(i));
-        const ClipInfo c = clip_size(shots[i]);
-        const ShotCost k = shot_cost(shots[i], c.width, c.height, c.frames);
-        need.minutes = std::max(need.minutes, k.minutes);
-        need.mem_mb = std::max(need.mem_mb, k.mem_mb);
+        const Shot& s = shots[i];
+        if (steps_of(s, state_of(s)).empty()) continue;
+        const ClipInfo c = clip_size(s);
+        const auto windows = window_shots(s);
+        if (windows.empty()) {
+            fits.push_back({int(i), -1});
+            need(fit_need, shot_cost(s, c.width, c.height, c.frames));
+            continue;
+        }
+        for (size_t k = 0; k < windows.size(); ++k) {
+            if (steps_of(windows[k], state_of(windows[k])).empty()) continue;
+            fits.push_back({int(i), int(k)});
+            need(fit_need,
+                 shot_cost(windows[k], c.width, c.height, windows[k].last - windows[k].first + 1));
+        }
+        if (!s.exports.empty()) {
+            stitches.push_back({int(i), -1});
+            Shot exports_only = s;
+            exports_only.minutes = 0, exports_only.iters = 0;
+            ShotCost k = shot_cost(exports_only, c.width, c.height, c.frames);
+            // each window's set-up once more (export opens each fit)
+            k.minutes += int(std::ceil(1.5 * 1.3e-6 * c.width * c.height * c.frames / 60.0));
+            need(stitch_need, k);
+        }
     }
-    if (todo.empty()) {
+    if (fits.empty() && stitches.empty()) {
         std::printf("batch submit: every shot of %s is done; nothing submitted\n",
                     list.string().c_str());
         return 0;
     }
-    if (a.has("time")) need.minutes = positive_int(a, "time", 0, 525600);
-    if (a.has("mem")) need.mem_mb = positive_int(a, "mem", 0, 1 << 24);
-
-    std::string array;
-    for (int i : todo) array += (array.empty() ? "" : ",") + std::to_string(i);
-    if (a.has("max-running"))
-        array += "%" + std::to_string(positive_int(a, "max-running", 1, 100000));
+    for (ShotCost* n : {&fit_need, &stitch_need}) {
+        if (a.has("time")) n->minutes = positive_int(a, "time", 0, 525600);
+        if (a.has("mem")) n->mem_mb = positive_int(a, "mem", 0, 1 << 24);
+    }
     const fs::path dir = list.parent_path() / "batch_slurm";
     const fs::path logs = logs_folder(list);
-    const fs::path script = dir / (list.stem().string() + ".sbatch");
     const std::string exe = fs::canonical("/proc/self/exe").string();
+    const std::string max_running =
+        a.has("max-running") ? "%" + std::to_string(positive_int(a, "max-running", 1, 100000)) : "";
 
-    std::ostringstream sh;
-    sh << "#!/bin/bash\n"
-       << "# Written by `refocus batch submit " << list.filename().string()
-       << "`: one array task a shot (its index in the list).\n"
-       << "#SBATCH --job-name=refocus-" << list.stem().string() << "\n"
-       << "#SBATCH --array=" << array << "\n"
-       << "#SBATCH --cpus-per-task=" << cpus << "\n"
-       << "#SBATCH --mem=" << need.mem_mb << "M\n"
-       << "#SBATCH --time=" << slurm_time(need.minutes) << "\n"
-       << "#SBATCH --requeue\n"
-       << "#SBATCH --open-mode=append\n"
-       << "#SBATCH --output=" << (logs / "slurm_%A_%a.log").string() << "\n";
-    if (a.has("partition")) sh << "#SBATCH --partition=" << a.get("partition") << "\n";
-    if (a.has("account")) sh << "#SBATCH --account=" << a.get("account") << "\n";
-    sh << "exec " << sh_quote(exe) << " batch shot " << sh_quote(list.string())
-       << " --index \"$SLURM_ARRAY_TASK_ID\" --threads \"${SLURM_CPUS_PER_TASK:-" << cpus
-       << "}\"\n";
-
-    std::printf(
-        "batch submit: %zu of %zu shots, each %d core%s, %d MB and %s (the largest "
-        "shot's)\n",
-        todo.size(), shots.size(), cpus, cpus == 1 ? "" : "s", need.mem_mb,
-        slurm_time(need.minutes).c_str());
-    if (a.has("dry-run")) {
-        std::printf("%s", sh.str().c_str());
-        return 0;
+    auto script_of = [&](const std::vector<Unit>& units, const ShotCost& n,
+                         const std::string& after, const char* what) {
+        std::ostringstream sh;
+        sh << "#!/bin/bash\n"
+           << "# Written by `refocus batch submit " << list.filename().string() << "`: " << what
+           << ".\n"
+           << "#SBATCH --job-name=refocus-" << list.stem().string() << "\n"
+           << "#SBATCH --array=0-" << units.size() - 1 << max_running << "\n"
+           << "#SBATCH --cpus-per-task=" << cpus << "\n"
+           << "#SBATCH --mem=" << n.mem_mb << "M\n"
+           << "#SBATCH --time=" << slurm_time(n.minutes) << "\n"
+           << "#SBATCH --requeue\n"
+           << "#SBATCH --open-mode=append\n"
+           << "#SBATCH --output=" << (logs / "slurm_%A_%a.log").string() << "\n";
+        if (!after.empty()) sh << "#SBATCH --dependency=afterok:" << after << "\n";
+        if (a.has("partition")) sh << "#SBATCH --partition=" << a.get("partition") << "\n";
+        if (a.has("account")) sh << "#SBATCH --account=" << a.get("account") << "\n";
+        sh << "# Task t runs shot units[t] (its index in the list, and its window; -1: the whole "
+              "shot)\nunits=(";
+        for (const Unit& u : units) sh << " " << u.shot << ":" << u.window;
+        sh << " )\nIFS=: read -r shot window <<< \"${units[$SLURM_ARRAY_TASK_ID]}\"\n"
+           << "exec " << sh_quote(exe) << " batch shot " << sh_quote(list.string())
+           << " --index \"$shot\" --window \"$window\" --threads \"${SLURM_CPUS_PER_TASK:-" << cpus
+           << "}\"\n";
+        return sh.str();
+    };
+    auto describe = [&](const std::vector<Unit>& units, const ShotCost& n, const char* what) {
+        std::printf("batch submit: %s: %zu task%s, each %d core%s, %d MB and %s (the largest)\n",
+                    what, units.size(), units.size() == 1 ? "" : "s", cpus, cpus == 1 ? "" : "s",
+                    n.mem_mb, slurm_time(n.minutes).c_str());
+    };
+    auto sbatch = [&](const fs::path& script, const std::string& text) {
+        write_file_atomic(script, text);
+        Subprocess sb({"sbatch", "--parsable", script.string()});
+        const int rc = sb.wait();
+        if (rc != 0)
+            throw Error("batch submit: sbatch failed (exit " + std::to_string(rc) +
+                        "): " + sb.last_line() + " (the script is " + script.string() + ")");
+        const std::string job = sb.last_line();
+        return job.substr(0, job.find(';'));  // "id;cluster" on a federation
+    };
+    const bool dry = a.has("dry-run");
+    if (!dry) fs::create_directories(dir), fs::create_directories(logs);
+    nlohmann::json rec = {{"arrays", nlohmann::json::array()}};
+    std::string fit_job = dry ? "<fits>" : "";
+    auto record = [&](const std::string& job, const std::vector<Unit>& units) {
+        nlohmann::json u = nlohmann::json::array();
+        for (const Unit& x : units) u.push_back({x.shot, x.window, shots[x.shot].name});
+        rec["arrays"].push_back({{"job", job}, {"units", u}});
+    };
+    if (!fits.empty()) {
+        describe(fits, fit_need, "fits");
+        const std::string text =
+            script_of(fits, fit_need, "", "the fits, one task a shot or window");
+        if (dry) {
+            std::printf("%s", text.c_str());
+        } else {
+            fit_job = sbatch(dir / (list.stem().string() + ".sbatch"), text);
+            record(fit_job, fits);
+            std::printf("submitted job array %s\n", fit_job.c_str());
+        }
     }
-    fs::create_directories(dir);
-    fs::create_directories(logs);
-    write_file_atomic(script, sh.str());
-    Subprocess sb({"sbatch", "--parsable", script.string()});
-    const int rc = sb.wait();
-    if (rc != 0)
-        throw Error("batch submit: sbatch failed (exit " + std::to_string(rc) +
-                    "): " + sb.last_line() + " (the script is " + script.string() + ")");
-    std::string job = sb.last_line();
-    job = job.substr(0, job.find(';'));  // "id;cluster" on a federation
-    nlohmann::json rec = {
-        {"job", job}, {"script", script.string()}, {"shots", nlohmann::json::array()}};
-    for (int i : todo) rec["shots"].push_back({{"index", i}, {"name", shots[i].name}});
+    if (!stitches.empty()) {
+        describe(stitches, stitch_need, "exports of the shots fitted as windows");
+        const std::string text =
+            script_of(stitches, stitch_need, fits.empty() ? "" : fit_job,
+                      "the exports of the shots fitted as windows, after every fit");
+        if (dry) {
+            std::printf("%s", text.c_str());
+        } else {
+            const std::string job = sbatch(dir / (list.stem().string() + "_exports.sbatch"), text);
+            record(job, stitches);
+            std::printf("submitted job array %s (after %s)\n", job.c_str(),
+                        fits.empty() ? "nothing" : fit_job.c_str());
+        }
+    }
+    if (dry) return 0;
     write_file_atomic(record_of(list), rec.dump(2) + "\n");
-    std::printf("submitted job array %s (%s); `refocus batch status %s` follows it\n", job.c_str(),
-                script.string().c_str(), list.filename().string().c_str());
+    std::printf("`refocus batch status %s` follows them\n", list.filename().string().c_str());
     return 0;
 }
 
 int batch_shot(const fs::path& list, const std::vector<Shot>& shots, int argc, char** argv) {
     Args a(argc, argv, 2);
-    a.check_known({"index", "threads"});
+    a.check_known({"index", "threads", "window"});
     if (a.positional().size() != 2 || !a.has("index"))
         throw Error(
-            "usage: refocus batch shot <shots.json|.csv> --index I [--threads N] (an "
-            "array task of `batch submit`)");
+            "usage: refocus batch shot <shots.json|.csv> --index I [--window K] [--threads N] "
+            "(an array task of `batch submit`)");
     const double i = a.get_double("index", -1);
     if (!(i >= 0 && i < double(shots.size())) || i != std::floor(i))
         throw Error(file_error(list.string(), "has no shot at index " + a.get("index") + " (" +
@@ -208,26 +270,21 @@ int batch_shot(const fs::path& list, const std::vector<Shot>& shots, int argc, c
     std::signal(SIGINT, [](int) { g_stop = 1; });
     fs::create_directories(logs_folder(list));
     std::mutex print;
-    const Outcome o = run_shot(shots[size_t(i)], logs_folder(list), threads, print, &g_stop);
+    const int window = a.get_int("window", -1);
+    const Outcome o =
+        run_shot(shots[size_t(i)], logs_folder(list), threads, print, &g_stop, window);
     return o.state == "done" || o.state == "skipped" ? 0 : 1;
 }
 
-std::vector<std::string> slurm_states(const fs::path& list, const std::vector<Shot>& shots) {
-    std::vector<std::string> out(shots.size());
-    const fs::path rec_path = record_of(list);
-    if (!fs::exists(rec_path)) return out;
-    nlohmann::json rec;
-    try {
-        rec = read_json_file(rec_path.string());
-    } catch (const std::exception&) {
-        return out;
-    }
-    const std::string job = rec.value("job", std::string());
-    if (job.empty()) return out;
-    std::map<int, std::string> by_index;
+namespace {
+
+// What Slurm says of job `job`'s array tasks: in the queue (squeue: state and reason), and out
+// of it (sacct, where accounting is kept). False where squeue cannot be run.
+bool task_states(const std::string& job, std::map<int, std::string>& queued,
+                 std::map<int, std::string>& ended) {
     try {
         Subprocess q({"squeue", "-h", "-r", "-j", job, "-o", "%K %T %r"});
-        if (q.wait() != 0) return out;
+        if (q.wait() != 0) return false;
         std::istringstream lines(q.output());
         for (std::string line; std::getline(lines, line);) {
             std::istringstream w(line);
@@ -236,17 +293,14 @@ std::vector<std::string> slurm_states(const fs::path& list, const std::vector<Sh
             std::getline(w, reason);
             if (!reason.empty() && reason[0] == ' ') reason.erase(0, 1);
             try {
-                by_index[std::stoi(idx)] =
-                    job + "_" + idx + " " + state +
-                    (reason.empty() || reason == "None" ? "" : " (" + reason + ")");
+                queued[std::stoi(idx)] =
+                    state + (reason.empty() || reason == "None" ? "" : " (" + reason + ")");
             } catch (const std::exception&) {
             }
         }
     } catch (const std::exception&) {
-        return out;  // no squeue here
+        return false;  // no squeue here
     }
-    // Tasks that left the queue: their end state where accounting is kept.
-    std::map<int, std::string> ended;
     try {
         Subprocess a({"sacct", "-n", "-P", "-X", "-j", job, "-o", "JobID,State"});
         if (a.wait() == 0) {
@@ -262,16 +316,48 @@ std::vector<std::string> slurm_states(const fs::path& list, const std::vector<Sh
         }
     } catch (const std::exception&) {
     }
-    for (const auto& s : rec.value("shots", nlohmann::json::array())) {
-        const int i = s.value("index", -1);
-        if (i < 0 || i >= int(shots.size()) || s.value("name", std::string()) != shots[i].name)
-            continue;
-        const auto it = by_index.find(i);
-        const std::string task = job + "_" + std::to_string(i);
-        out[i] = it != by_index.end() ? it->second
-                 : ended.count(i)     ? task + " " + ended[i]
-                                      : task + " left the queue";
+    return true;
+}
+
+}  // namespace
+
+std::vector<std::string> slurm_states(const fs::path& list, const std::vector<Shot>& shots) {
+    std::vector<std::string> out(shots.size());
+    const fs::path rec_path = record_of(list);
+    if (!fs::exists(rec_path)) return out;
+    nlohmann::json rec;
+    try {
+        rec = read_json_file(rec_path.string());
+    } catch (const std::exception&) {
+        return out;
     }
+    // Per shot: its tasks still queued (the first shown, and how many more), else the last
+    // task's end.
+    std::vector<std::vector<std::string>> queued(shots.size());
+    std::vector<std::string> last(shots.size());
+    for (const auto& arr : rec.value("arrays", nlohmann::json::array())) {
+        const std::string job = arr.value("job", std::string());
+        std::map<int, std::string> q, e;
+        if (job.empty() || !task_states(job, q, e)) continue;
+        const auto units = arr.value("units", nlohmann::json::array());
+        for (size_t t = 0; t < units.size(); ++t) {
+            const auto& u = units[t];
+            if (!u.is_array() || u.size() != 3 || !u[0].is_number_integer()) continue;
+            const int i = u[0].get<int>();
+            if (i < 0 || i >= int(shots.size()) || u[2] != shots[i].name) continue;
+            const std::string task = job + "_" + std::to_string(t) + " ";
+            if (q.count(int(t)))
+                queued[i].push_back(task + q[int(t)]);
+            else
+                last[i] = task + (e.count(int(t)) ? e[int(t)] : "left the queue");
+        }
+    }
+    for (size_t i = 0; i < shots.size(); ++i)
+        out[i] =
+            queued[i].empty()
+                ? last[i]
+                : queued[i][0] +
+                      (queued[i].size() > 1 ? " +" + std::to_string(queued[i].size() - 1) : "");
     return out;
 }
 

@@ -11,6 +11,7 @@
 #include "prepare/noise.h"
 #include "edit/atlas_edit.h"
 #include "session/fit_session.h"
+#include "session/windows.h"
 #include "util/error.h"
 #include "util/lock.h"
 #include "util/validate.h"
@@ -179,6 +180,44 @@ int cmd_fit(int argc, char** argv) {
     return g_interrupted ? 130 : 0;
 }
 
+// A long shot fitted as windows (session/windows.h): each pass stitched from the windows.
+static int export_shot(const Args& a, const std::string& what, const std::string& out) {
+    if (a.has("first") || a.has("last"))
+        throw Error(
+            "--first/--last: a shot's windows are exported whole; export a range from a "
+            "window's project");
+    const WindowedShot shot = WindowedShot::load(a.positional()[0]);
+    std::vector<ExportPass> passes;
+    if (what == "all") {
+        passes = {ExportPass::Sharp,   ExportPass::Reblur, ExportPass::Alpha,     ExportPass::Coc,
+                  ExportPass::Refocus, ExportPass::Depth,  ExportPass::Confidence};
+    } else {
+        passes = {parse_export_pass(what)};
+    }
+    std::printf("shot %s: %d frames in %zu windows (overlap %d)\n", shot.dir.string().c_str(),
+                shot.frames, shot.windows.size(), shot.overlap);
+    for (ExportPass p : passes) {
+        const bool data_pass =
+            p == ExportPass::Coc || p == ExportPass::Uv || p == ExportPass::Depth;
+        std::string format = a.get("format", data_pass ? "exr" : "png");
+        if (what == "all" && data_pass) format = "exr";
+        std::string target = out;
+        if (what == "all") {
+            target = (fs::path(out) / export_pass_name(p)).string();
+            if (format == "mp4") target += ".mp4";
+        }
+        StageProgress bar(std::string("export ") + export_pass_name(p));
+        const auto files = export_windowed(shot, p, format, target, [&](int done, int total) {
+            bar.update(total > 0 ? double(done) / total : 0.0,
+                       "frame " + std::to_string(done) + "/" + std::to_string(total));
+            return true;
+        });
+        bar.done(std::to_string(files.size()) + " file(s)");
+        std::printf("%s: %zu file(s) in %s\n", export_pass_name(p), files.size(), target.c_str());
+    }
+    return 0;
+}
+
 int cmd_export(int argc, char** argv) {
     Args a(argc, argv, 2);
     a.check_known({"what", "format", "out", "first", "last"});
@@ -187,9 +226,10 @@ int cmd_export(int argc, char** argv) {
             "usage: refocus export <project> --what "
             "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|all "
             "[--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>");
-    Project project = Project::load(a.positional()[0]);
     const std::string what = a.get("what", "sharp");
     const std::string out = a.get("out");
+    if (WindowedShot::is_windowed(a.positional()[0])) return export_shot(a, what, out);
+    Project project = Project::load(a.positional()[0]);
     if (what == "all" && (fs::path(out).extension() == ".mp4" || fs::is_regular_file(out)))
         throw Error(file_error(out,
                                "--what all writes a folder (one sequence or mp4 per pass): "

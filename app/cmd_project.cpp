@@ -48,20 +48,30 @@ ClipReadOptions read_options(const Args& a) {
 
 int cmd_new(int argc, char** argv) {
     Args a(argc, argv, 2);
-    a.check_known({"out", "fps", "nonfinite"});
+    a.check_known({"out", "fps", "nonfinite", "first", "last"});
     if (a.positional().size() != 1 || !a.has("out"))
-        throw Error("usage: refocus new <clip> -o <project-dir>");
+        throw Error("usage: refocus new <clip> -o <project-dir> [--first N] [--last N]");
     const std::string clip = a.positional()[0];
+    ClipReadOptions opts = read_options(a);
+    opts.first = a.get_int("first", 0);
+    opts.last = a.get_int("last", -1);
+    if (opts.first < 0 || (a.has("last") && opts.last < opts.first))
+        throw Error("--first and --last name frames from 0, first <= last (got " +
+                    a.get("first", "0") + ".." + a.get("last", "end") + ")");
     std::signal(SIGINT, [](int) { g_interrupted = 1; });
     std::signal(SIGTERM, [](int) { g_interrupted = 1; });
     StageProgress progress("ingest");
-    Project p = create_project(clip, a.get("out"), read_options(a),
+    Project p = create_project(clip, a.get("out"), opts,
                                [&](int i, int n) { print_progress(progress, i, n); });
     if (a.has("fps") && !is_project_path(clip) && is_video_path(clip))
         std::fprintf(stderr, "note: --fps %g replaces the video's own frame rate\n", p.fps);
-    std::printf("created project %s: %dx%d, %d frames at %.3f fps from %s\n",
-                p.project_file().string().c_str(), p.width, p.height, p.frames, p.fps,
-                clip.c_str());
+    std::printf("created project %s: %dx%d, %d frames at %.3f fps from %s%s\n",
+                p.project_file().string().c_str(), p.width, p.height, p.frames, p.fps, clip.c_str(),
+                p.sections.contains("source_range")
+                    ? (" (frames " + std::to_string(opts.first) + ".." +
+                       std::to_string(opts.first + p.frames - 1) + ")")
+                          .c_str()
+                    : "");
     std::printf("noise: %s\n", project_noise(p).describe().c_str());
     return 0;
 }

@@ -23,7 +23,8 @@ struct Command {
 };
 
 const Command kCommands[] = {
-    {"new", refocus::cmd_new, "new <clip> -o <project-dir> [--fps F] [--nonfinite reject|clean]",
+    {"new", refocus::cmd_new,
+     "new <clip> -o <project-dir> [--fps F] [--nonfinite reject|clean] [--first N] [--last N]",
      "ingest a video or image sequence into a new project"},
     {"info", refocus::cmd_info, "info <clip-or-project>",
      "print size, frames, fps and what a project holds"},

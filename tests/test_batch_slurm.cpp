@@ -1,5 +1,6 @@
 // refocus batch submit on a real Slurm: a one-machine cluster on loopback
-// (tools/slurm/local_cluster.sh), three tiny shots as one job array, one task requeued mid-fit;
+// (tools/slurm/local_cluster.sh), three tiny shots (one as two windows) as job arrays, a window
+// requeued mid-fit, the stitching exports after the fits;
 // every output equals the same list run by `batch run`, byte for byte (fixed-step fits, one
 // thread each). Exits 77 (CTest: skipped, with the reason printed) where the daemons cannot
 // start: not root, Slurm or munge not installed.
@@ -75,10 +76,11 @@ TEST_CASE("batch submit: a Slurm job array, a task requeued mid-fit, outputs equ
 
     for (const char* scene : {"rack", "tripod", "pan"}) {
         const auto r = cli(std::string("synth --scene ") + scene + " -o " + sh(root / scene) +
-                           " --size 64x36 --frames 6");
+                           " --size 64x36 --frames " + (scene[0] == 'p' ? "8" : "6"));
         REQUIRE(r.code == 0);
     }
-    // The third shot is long enough to be requeued while it trains.
+    // The third shot is fitted as two windows (frames 0..4 and 3..7), each long enough to be
+    // requeued while it trains; its exports wait for both.
     auto list_text = [](const std::string& p, const std::string& out) {
         return R"({"shots": [
           {"name": "sh010", "clip": "rack/input_%04d.png", "project": ")" +
@@ -91,7 +93,7 @@ TEST_CASE("batch submit: a Slurm job array, a task requeued mid-fit, outputs equ
                out + R"(/sh020"}]},
           {"name": "sh030", "clip": "pan/input_%04d.png", "project": ")" +
                p + R"(/sh030",
-           "iters": 800, "exports": [{"what": "sharp", "out": ")" +
+           "iters": 600, "window": 6, "overlap": 2, "exports": [{"what": "sharp", "out": ")" +
                out + R"(/sh030"}]}]})";
     };
     const fs::path list = root / "shots.json", here = root / "here.json";
@@ -101,36 +103,48 @@ TEST_CASE("batch submit: a Slurm job array, a task requeued mid-fit, outputs equ
     auto r = cli("batch submit " + sh(list) + " --cpus 1 --dry-run");
     INFO(r.output);
     REQUIRE(r.code == 0);
-    CHECK(r.output.find("#SBATCH --array=0,1,2") != std::string::npos);
+    CHECK(r.output.find("#SBATCH --array=0-3") != std::string::npos);  // 2 shots, 2 windows
+    CHECK(r.output.find("units=( 0:-1 1:-1 2:0 2:1 )") != std::string::npos);
+    CHECK(r.output.find("#SBATCH --dependency=afterok:<fits>") != std::string::npos);
     CHECK(r.output.find("#SBATCH --requeue") != std::string::npos);
     CHECK(!fs::exists(root / "batch_slurm"));
 
     r = cli("batch submit " + sh(list) + " --cpus 1");
     INFO(r.output);
     REQUIRE(r.code == 0);
-    const std::string job =
-        nlohmann::json::parse(bytes_of(root / "batch_slurm/shots.json"))["job"].get<std::string>();
-    REQUIRE(!job.empty());
+    const auto rec = nlohmann::json::parse(bytes_of(root / "batch_slurm/shots.json"));
+    REQUIRE(rec["arrays"].size() == 2);
+    const std::string job = rec["arrays"][0]["job"].get<std::string>();
+    const std::string stitch = rec["arrays"][1]["job"].get<std::string>();
+    REQUIRE(rec["arrays"][0]["units"][3] == nlohmann::json::array({2, 1, "sh030"}));
 
-    // Requeue sh030 once its fit trains: Slurm sends SIGTERM, the fit checkpoints and stops.
-    const fs::path log030 = root / "batch_logs/sh030.log";
-    wait_for([&] { return bytes_of(log030).find("\nfitting ") != std::string::npos; }, 120,
-             "sh030's fit to start");
-    REQUIRE(run("scontrol requeue " + job + "_2").code == 0);
+    // Requeue sh030's second window once its fit trains: Slurm sends SIGTERM, the fit
+    // checkpoints and stops.
+    const fs::path log = root / "batch_logs/sh030_w01.log";
+    wait_for([&] { return bytes_of(log).find("\nfitting ") != std::string::npos; }, 120,
+             "sh030 w01's fit to start");
+    REQUIRE(run("scontrol requeue " + job + "_3").code == 0);
     // A requeued task waits two minutes before it is eligible; let it start now.
-    wait_for([&] { return squeue().find(job + "_2 PENDING") != std::string::npos; }, 60,
+    wait_for([&] { return squeue().find(job + "_3 PENDING") != std::string::npos; }, 60,
              "the requeued task to be pending");
-    REQUIRE(run("scontrol update JobId=" + job + "_2 StartTime=now").code == 0);
+    REQUIRE(run("scontrol update JobId=" + job + "_3 StartTime=now").code == 0);
     const auto status = cli("batch status " + sh(list));
     INFO(status.output);
-    wait_for([&] { return squeue().find(job + "_") == std::string::npos; }, 240,
-             "the array to finish");
+    wait_for(
+        [&] {
+            const std::string q = squeue();
+            return q.find(job + "_") == std::string::npos &&
+                   q.find(stitch + "_") == std::string::npos;
+        },
+        240, "both arrays to finish");
 
-    const std::string slog = bytes_of(root / ("batch_logs/slurm_" + job + "_2.log"));
+    const std::string slog = bytes_of(root / ("batch_logs/slurm_" + job + "_3.log"));
     INFO(slog);
     CHECK(slog.find("fit stopped") != std::string::npos);
     CHECK(slog.find("--resume") != std::string::npos);
-    CHECK(bytes_of(log030).find("resumed at step") != std::string::npos);
+    CHECK(bytes_of(log).find("resumed at step") != std::string::npos);
+    CHECK(bytes_of(root / ("batch_logs/slurm_" + stitch + "_0.log")).find("export") !=
+          std::string::npos);
     r = cli("batch status " + sh(list));
     INFO(r.output);
     CHECK(r.output.find("sh030            done") != std::string::npos);
@@ -154,7 +168,7 @@ TEST_CASE("batch submit: a Slurm job array, a task requeued mid-fit, outputs equ
             CHECK(bytes_of(e.path()) == bytes_of(other));
         ++compared;
     }
-    CHECK(compared == 18);
+    CHECK(compared == 20);
 
     // Submitting again finds nothing to do.
     r = cli("batch submit " + sh(list) + " --cpus 1");

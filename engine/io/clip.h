@@ -31,6 +31,7 @@ struct ClipReadOptions {
     NonFinitePolicy nonfinite = NonFinitePolicy::Reject;
     double default_fps = 24.0;  // image sequences carry no rate
     bool fps_override = false;  // default_fps also replaces a video's own rate (new --fps)
+    int first = 0, last = -1;   // create_project: ingest frames first..last (-1: to the end)
 };
 
 // A video file by its extension. A file that exists is never read as a frame pattern,

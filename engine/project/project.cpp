@@ -244,6 +244,14 @@ Project Project::load(const fs::path& dir_or_file) {
         " (a project is the folder 'refocus new <clip> -o <folder>' made, holding project.json)";
     if (fs::is_directory(file)) {
         file /= kFileName;
+        // A long shot fitted as windows (session/windows.h): each window is the project.
+        if (!fs::exists(file) && fs::exists(dir_or_file / "windows.json"))
+            throw Error(file_error(
+                dir_or_file.string(),
+                "is a shot fitted as windows (windows.json); each window is a project of its own, "
+                "in " +
+                    (dir_or_file / "windows").string() +
+                    " (refocus export stitches them; an atlas edit goes to one window)"));
         if (!fs::exists(file))
             throw Error(
                 file_error(dir_or_file.string(),
@@ -298,7 +306,7 @@ namespace {
 // The queue is bounded, so memory holds a few frames whatever the clip's length. The first
 // error (decode or write) stops the ingest and is rethrown here. `progress(done, total)` is
 // called on the calling thread.
-void write_frames_threaded(ClipReader& reader, int frames,
+void write_frames_threaded(ClipReader& reader, int first, int frames,
                            const std::function<void(int, const Image&)>& write,
                            const std::function<void(int, int)>& progress) {
     const int writers = std::clamp(static_cast<int>(std::thread::hardware_concurrency()), 1, 4);
@@ -354,7 +362,7 @@ void write_frames_threaded(ClipReader& reader, int frames,
     };
     try {
         for (int i = 0; i < frames; ++i) {
-            Image f = reader.read(i);
+            Image f = reader.read(first + i);
             {
                 std::unique_lock<std::mutex> lk(m);
                 cv.wait(lk, [&] { return queue.size() < max_queued || error; });
@@ -416,7 +424,14 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
     p.source_format = info.source_format;
     p.width = info.width;
     p.height = info.height;
-    p.frames = info.frames;
+    // A range of the clip (a window of a long shot): its frames become frames 0.. here.
+    const int first = opts.first, last = opts.last < 0 ? info.frames - 1 : opts.last;
+    if (first < 0 || first > last || last >= info.frames)
+        throw Error(file_error(clip, "frames " + std::to_string(first) + ".." +
+                                         std::to_string(last) + " are not inside the clip's 0.." +
+                                         std::to_string(info.frames - 1)));
+    p.frames = last - first + 1;
+    if (p.frames != info.frames) p.sections["source_range"] = {{"first", first}, {"last", last}};
     p.fps = info.fps;
     p.frame_pattern = "frames/frame_%04d.exr";
     // Built in a temporary folder and moved into place complete (project.json last): a failed
@@ -424,10 +439,10 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
     const fs::path tmp = make_temp_dir_beside(fs::absolute(dir).lexically_normal());
     try {
         // The noise is measured on the ingested frames (before the cache's half precision).
-        const std::vector<int> sample = noise_sample_frames(info.frames);
+        const std::vector<int> sample = noise_sample_frames(p.frames);
         const double rounding = source_rounding_var(info.source_format);
         std::vector<std::array<double, 3>> noise(sample.size(), {{-1, -1, -1}});
-        Project staged = p;
+        Project staged = p;  // holds source_range
         staged.dir = tmp;
         std::error_code ec;
         fs::create_directories(tmp / "frames", ec);
@@ -437,7 +452,7 @@ Project create_project(const std::string& clip, const fs::path& dir, const ClipR
         const PixelFormat cache_format =
             info.source_format == "float" ? PixelFormat::ExrFloat : PixelFormat::ExrHalf;
         write_frames_threaded(
-            *reader, info.frames,
+            *reader, first, p.frames,
             [&](int i, const Image& f) {
                 const auto at = std::find(sample.begin(), sample.end(), i);
                 if (at != sample.end())  // each frame written by one thread: its own slot

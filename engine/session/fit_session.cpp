@@ -265,18 +265,6 @@ void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
     ++s.frames;
 }
 
-// No export writes a NaN/Inf pixel: a fit that produced one is refused before anything is
-// renamed into place (the writer's staging is removed as the error unwinds).
-void refuse_nonfinite(const Image& img, const std::string& what, int t) {
-    long first = -1;
-    const size_t bad = count_nonfinite(img, &first);
-    if (bad == 0) return;
-    throw Error(what + (t >= 0 ? " frame " + std::to_string(t) : std::string()) + ": " +
-                std::to_string(bad) +
-                " NaN/Inf value(s) in the fit's result; nothing was written (the fit is damaged: "
-                "fit again without --resume)");
-}
-
 // The project's atlas edits as deltas over the current atlases (undefined: no edit).
 std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const ProjectEdits* e) {
     if (!e || !e->has_edits()) return {};
@@ -292,22 +280,117 @@ std::pair<torch::Tensor, torch::Tensor> edit_deltas(FitEngine& engine, const Pro
 }
 }  // namespace
 
+// No export writes a NaN/Inf pixel: a fit that produced one is refused before anything is
+// renamed into place (the writer's staging is removed as the error unwinds).
+void refuse_nonfinite(const Image& img, const std::string& what, int t) {
+    long first = -1;
+    const size_t bad = count_nonfinite(img, &first);
+    if (bad == 0) return;
+    throw Error(what + (t >= 0 ? " frame " + std::to_string(t) : std::string()) + ": " +
+                std::to_string(bad) +
+                " NaN/Inf value(s) in the fit's result; nothing was written (the fit is damaged: "
+                "fit again without --resume)");
+}
+
+struct PassFrames::State {
+    torch::Tensor bg, fg;  // the edits' deltas
+    FocusTrack track;
+    DepthModel depth;
+    int threads = 1;
+};
+
+PassFrames::~PassFrames() = default;
+
+PassFrames::PassFrames(FitEngine& engine, ExportPass pass, bool three_channels,
+                       const ExportOptions& o)
+    : m_engine(engine), m_pass(pass), m_three(three_channels), m_opts(o), m(new State) {
+    const std::string name = export_pass_name(pass);
+    m_needs_project = pass == ExportPass::Refocus || pass == ExportPass::Depth;
+    if (m_needs_project && !o.project)
+        throw Error("--what " + name + " needs the project (its depth and focus keys)");
+    std::tie(m->bg, m->fg) = edit_deltas(engine, pass == ExportPass::Depth ? nullptr : o.edits);
+    // Refocus / depth: validate the focus keys and fit (or load) the depth before the work.
+    if (m_needs_project) {
+        m->track = o.focus ? *o.focus : read_focus(*o.project);
+        m->depth = project_depth(engine, o.project->dir);
+    }
+    m->threads = std::max(1, int(std::thread::hardware_concurrency()));
+}
+
+Image PassFrames::frame(int t) {
+    const FitData& d = m_engine.data();
+    torch::NoGradGuard no_grad;
+    Layers L = m_engine.render_frame(t);
+    const Layers model = L;
+    apply_edits(L, m->bg, m->fg);
+    // The sharp plate and what is made from it fall back to the shot where the fit failed
+    // (the edits stay on top); the reblur and the layers stay the model's.
+    if (m_pass == ExportPass::Sharp || m_needs_project) {
+        m_engine.apply_fallback(L, t, &model);
+        if (m_opts.fallback) count_fallback(m_engine, t, *m_opts.fallback);
+    }
+    if (m_needs_project) {
+        const FrameMaps fm = frame_maps(L);
+        return m_pass == ExportPass::Depth
+                   ? m->depth.depth_map(t, fm.uv_bg, fm.uv_fg, fm.alpha)
+                   : render_refocused(fm, m->depth, t, m->track.lens_at(t, &m->depth), m->threads);
+    }
+    torch::Tensor img;
+    switch (m_pass) {
+        case ExportPass::Sharp:
+            img = L.sharp[0];
+            break;
+        case ExportPass::Reblur:
+            img = m_engine.reblur(L, {t})[0];
+            break;
+        case ExportPass::Alpha:
+            img = L.alpha.defined() ? L.alpha[0] : torch::zeros({1, d.height, d.width});
+            if (m_three) img = img.expand({3, d.height, d.width});
+            break;
+        case ExportPass::Coc:
+            img = d.radius[t].unsqueeze(0);
+            break;
+        case ExportPass::Confidence:
+            img = m_engine.confidence(t)[0];
+            if (m_three) img = img.expand({3, d.height, d.width});
+            break;
+        case ExportPass::Uv: {
+            // (u, v[, u_fg, v_fg]) in [-1, 1]; 2 channels are padded to 3 (RGB layouts).
+            img = L.uv_bg[0].permute({2, 0, 1});
+            if (L.uv_fg.defined()) img = torch::cat({img, L.uv_fg[0].permute({2, 0, 1})}, 0);
+            if (img.size(0) == 2)
+                img = torch::cat({img, torch::zeros_like(img[0]).unsqueeze(0)}, 0);
+            break;
+        }
+        default:
+            throw Error(std::string("--what ") + export_pass_name(m_pass) + " has no frames");
+    }
+    return tensor_to_image(img.contiguous());
+}
+
+ClipWriteOptions pass_write_options(ExportPass pass, double fps) {
+    ClipWriteOptions wo;
+    wo.fps = fps;
+    wo.srgb_encode = !(pass == ExportPass::Alpha || pass == ExportPass::Confidence);
+    return wo;
+}
+
+ClipFormat pass_clip_format(ExportPass pass, const std::string& format) {
+    const bool data_pass =
+        pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth;
+    if (data_pass && format != "exr" && format != "exr32")
+        throw Error(std::string("--what ") + export_pass_name(pass) +
+                    " holds values in px / atlas coordinates / inverse depth: use --format exr");
+    return parse_clip_format(format == "exr" && data_pass ? "exr32" : format);
+}
+
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
                                      const std::string& out, const ExportOptions& o) {
     const std::string name = export_pass_name(pass);
     if (o.project) check_export_target(*o.project, out);
-    const bool data_pass =
-        pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth;
-    if (data_pass && format != "exr" && format != "exr32")
-        throw Error("--what " + name +
-                    " holds values in px / atlas coordinates / inverse depth: use --format exr");
-    const bool needs_project = pass == ExportPass::Refocus || pass == ExportPass::Depth;
-    if (needs_project && !o.project)
-        throw Error("--what " + name + " needs the project (its depth and focus keys)");
-    const auto [d_bg, d_fg] = edit_deltas(engine, pass == ExportPass::Depth ? nullptr : o.edits);
-
     if (pass == ExportPass::Atlas) {
         if (format == "mp4") throw Error("an atlas is an image: use --format png, tiff or exr");
+        const auto [d_bg, d_fg] = edit_deltas(engine, o.edits);
         std::error_code ec;
         fs::create_directories(out, ec);
         const PixelFormat pf = parse_pixel_format(format);
@@ -329,77 +412,16 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
         write(engine.model().atlas_fg(), d_fg, "fg");
         return files;
     }
-
+    const ClipFormat cf = pass_clip_format(pass, format);
     const FitData& d = engine.data();
     const int first = o.first, last = o.last < 0 ? d.frames - 1 : o.last;
     if (first < 0 || first > last || last >= d.frames)
         throw Error("frame range " + std::to_string(first) + ".." + std::to_string(last) +
                     " is not inside the clip's frames 0.." + std::to_string(d.frames - 1));
-    // Refocus / depth: validate the focus keys and fit (or load) the depth before the work.
-    FocusTrack track;
-    DepthModel depth;
-    if (needs_project) {
-        track = o.focus ? *o.focus : read_focus(*o.project);
-        depth = project_depth(engine, o.project->dir);
-    }
-    const int threads = std::max(1, int(std::thread::hardware_concurrency()));
-
-    ClipWriteOptions wo;
-    wo.fps = o.fps;
-    wo.srgb_encode = !(pass == ExportPass::Alpha || pass == ExportPass::Confidence);
-    const ClipFormat cf = parse_clip_format(format == "exr" && data_pass ? "exr32" : format);
-    ClipWriter writer(out, name, cf, wo);
-    torch::NoGradGuard no_grad;
+    PassFrames frames(engine, pass, cf == ClipFormat::Mp4, o);
+    ClipWriter writer(out, name, cf, pass_write_options(pass, o.fps));
     for (int t = first; t <= last; ++t) {
-        Layers L = engine.render_frame(t);
-        const Layers model = L;
-        apply_edits(L, d_bg, d_fg);
-        // The sharp plate and what is made from it fall back to the shot where the fit failed
-        // (the edits stay on top); the reblur and the layers stay the model's.
-        if (pass == ExportPass::Sharp || needs_project) {
-            engine.apply_fallback(L, t, &model);
-            if (o.fallback) count_fallback(engine, t, *o.fallback);
-        }
-        Image frame;
-        if (needs_project) {
-            const FrameMaps m = frame_maps(L);
-            frame = pass == ExportPass::Depth
-                        ? depth.depth_map(t, m.uv_bg, m.uv_fg, m.alpha)
-                        : render_refocused(m, depth, t, track.lens_at(t, &depth), threads);
-        } else {
-            torch::Tensor img;
-            switch (pass) {
-                case ExportPass::Sharp:
-                    img = L.sharp[0];
-                    break;
-                case ExportPass::Reblur:
-                    img = engine.reblur(L, {t})[0];
-                    break;
-                case ExportPass::Alpha:
-                    img = L.alpha.defined() ? L.alpha[0] : torch::zeros({1, d.height, d.width});
-                    if (cf == ClipFormat::Mp4) img = img.expand({3, d.height, d.width});
-                    break;
-                case ExportPass::Coc:
-                    img = d.radius[t].unsqueeze(0);
-                    break;
-                case ExportPass::Confidence:
-                    img = engine.confidence(t)[0];
-                    if (cf == ClipFormat::Mp4) img = img.expand({3, d.height, d.width});
-                    break;
-                case ExportPass::Uv: {
-                    // (u, v[, u_fg, v_fg]) in [-1, 1]; 2 channels are padded to 3 (RGB layouts).
-                    img = L.uv_bg[0].permute({2, 0, 1});
-                    if (L.uv_fg.defined())
-                        img = torch::cat({img, L.uv_fg[0].permute({2, 0, 1})}, 0);
-                    if (img.size(0) == 2)
-                        img = torch::cat({img, torch::zeros_like(img[0]).unsqueeze(0)}, 0);
-                    break;
-                }
-                default:
-                    break;
-            }
-            frame = tensor_to_image(img.contiguous());
-        }
+        const Image frame = frames.frame(t);
         refuse_nonfinite(frame, name, t);
         writer.write(frame);
         if (o.progress && !o.progress(t - first + 1, last - first + 1)) {

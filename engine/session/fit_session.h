@@ -80,4 +80,27 @@ void check_export_target(const Project& p, const fs::path& target);
 std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const std::string& format,
                                      const std::string& out, const ExportOptions& opts);
 
+// One pass's frames, one at a time, as export_pass writes them (edits, the fallback, refocus);
+// not the atlas. `three_channels`: one-channel passes as grey RGB (mp4).
+class PassFrames {
+  public:
+    PassFrames(FitEngine& engine, ExportPass pass, bool three_channels, const ExportOptions& o);
+    ~PassFrames();
+    Image frame(int t);
+
+  private:
+    struct State;  // the edits' deltas, the focus keys and the depth model
+    FitEngine& m_engine;
+    ExportPass m_pass;
+    bool m_three, m_needs_project = false;
+    ExportOptions m_opts;
+    std::unique_ptr<State> m;
+};
+// No export writes a NaN/Inf pixel: refocus::Error naming the pass and frame `t` (-1: none).
+void refuse_nonfinite(const Image& img, const std::string& what, int t);
+// How export_pass writes a pass: its clip format (data passes as float EXR; refuses a format
+// that cannot hold them) and writer options.
+ClipFormat pass_clip_format(ExportPass pass, const std::string& format);
+ClipWriteOptions pass_write_options(ExportPass pass, double fps);
+
 }  // namespace refocus
