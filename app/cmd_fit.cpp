@@ -113,15 +113,19 @@ int cmd_fit(int argc, char** argv) {
 
     PrepareLog log([](const std::string& line) { std::fprintf(stderr, "  %s\n", line.c_str()); });
     StageProgress prep("prepare");
+    prep.keep_alive(10.0);
     log.set_stage_sink(
         [&](const std::string& name, double begin, double) { prep.update(begin, name, true); });
     auto data = build_fit_data(project, s.setup, log);
     prep.done("ready");
     const double prep_s = seconds_since(started);
-    // The model's set-up (alignment, fused atlases) says nothing while it runs: say it starts.
+    // The model's set-up (alignment, fused atlases): a line as it starts, then every 10 s.
     std::fprintf(stderr, "set-up: building the %s model over %d frames\n", s.fit.preset.c_str(),
                  project.frames);
+    StageProgress setup_bar("set-up");
+    setup_bar.keep_alive(10.0);
     FitEngine engine(data, s.fit);
+    setup_bar.done("model ready");
     for (const auto& line : engine.model_notes()) log.info(line);
     const double setup_s = seconds_since(started) - prep_s;
     log.info("set-up: preparation " + fixed1(prep_s) + " s, model " + fixed1(setup_s) + " s");
@@ -239,7 +243,10 @@ int cmd_export(int argc, char** argv) {
     if (project.sections.contains("noise"))
         std::printf("noise: %s\n", project_noise(project).describe().c_str());
     PrepareLog log;
+    StageProgress opening("opening the fit");
+    opening.keep_alive(10.0);
     auto engine = open_fitted(project, log);
+    opening.done("ready");
     const ProjectEdits edits = ProjectEdits::load(project);  // atlas edits follow every frame
     if (edits.has_edits()) std::fprintf(stderr, "applying the project's atlas edits\n");
     std::vector<ExportPass> passes;

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cstdio>
 
+#include "util/activity.h"
+
 namespace refocus {
 
 std::string clock_text(double s) {
@@ -20,15 +22,53 @@ StageProgress::StageProgress(std::string what, double line_every_s)
       m_tty(isatty(fileno(stderr))),
       m_start(std::chrono::steady_clock::now()) {}
 
+StageProgress::~StageProgress() {
+    stop_keeper();
+}
+
+void StageProgress::stop_keeper() {
+    {
+        std::lock_guard<std::mutex> l(m_mutex);
+        m_stop = true;
+    }
+    m_wake.notify_all();
+    if (m_keeper.joinable()) m_keeper.join();
+}
+
+void StageProgress::keep_alive(double every_s) {
+    if (m_keeper.joinable()) return;
+    {
+        std::lock_guard<std::mutex> l(m_mutex);
+        m_last_line = std::max(m_last_line, 0.0);  // the first line after every_s of silence
+    }
+    m_keeper = std::thread([this, every_s] {
+        std::unique_lock<std::mutex> l(m_mutex);
+        while (!m_wake.wait_for(l, std::chrono::seconds(1), [this] { return m_stop; })) {
+            const double el =
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - m_start).count();
+            if (el - m_last_line < every_s) continue;
+            const std::string now = current_activity();
+            print_locked(m_fraction, now.empty() ? m_detail : now, true, false);
+        }
+    });
+}
+
 void StageProgress::update(double fraction, const std::string& detail, bool new_step) {
     print(std::clamp(fraction, 0.0, 1.0), detail, new_step, false);
 }
 
 void StageProgress::done(const std::string& detail) {
+    stop_keeper();
     print(1.0, detail, true, true);
 }
 
 void StageProgress::print(double f, const std::string& detail, bool now, bool last) {
+    std::lock_guard<std::mutex> l(m_mutex);
+    m_fraction = f, m_detail = detail;
+    print_locked(f, detail, now, last);
+}
+
+void StageProgress::print_locked(double f, const std::string& detail, bool now, bool last) {
     const double el =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - m_start).count();
     if (!m_tty && !now && el - m_last_line < m_every) return;

@@ -4,13 +4,20 @@
 // pipe) a plain line every few seconds. stderr is unbuffered, so each line is in the file as it
 // is written. The fit's own progress (cmd_fit.cpp) follows the same pattern with its figures.
 #include <chrono>
+#include <condition_variable>
+#include <mutex>
 #include <string>
+#include <thread>
 
 namespace refocus {
 
 class StageProgress {
   public:
     explicit StageProgress(std::string what, double line_every_s = 5.0);
+    ~StageProgress();
+    // Repeats the line every `every_s` seconds that nothing else printed, with the engine's
+    // current activity (util/activity.h) where it says one: no stage is silent for longer.
+    void keep_alive(double every_s = 10.0);
     // `fraction` of the stage done (0..1); `detail` says what it is doing now. Off a terminal a
     // `new_step` is printed at once (a preparation step begins), the rest every few seconds.
     void update(double fraction, const std::string& detail = "", bool new_step = false);
@@ -18,6 +25,14 @@ class StageProgress {
 
   private:
     void print(double fraction, const std::string& detail, bool now, bool last);
+    void print_locked(double fraction, const std::string& detail, bool now, bool last);
+    void stop_keeper();
+    std::mutex m_mutex;
+    std::condition_variable m_wake;
+    std::thread m_keeper;
+    bool m_stop = false;
+    double m_fraction = 0;
+    std::string m_detail;
     std::string m_what;
     double m_every;
     bool m_tty;
