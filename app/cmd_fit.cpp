@@ -14,6 +14,7 @@
 #include "session/windows.h"
 #include "util/error.h"
 #include "util/lock.h"
+#include "util/timing.h"
 #include "util/validate.h"
 
 namespace refocus {
@@ -114,9 +115,13 @@ int cmd_fit(int argc, char** argv) {
     PrepareLog log([](const std::string& line) { std::fprintf(stderr, "  %s\n", line.c_str()); });
     StageProgress prep("prepare");
     prep.keep_alive(10.0);
-    log.set_stage_sink(
-        [&](const std::string& name, double begin, double) { prep.update(begin, name, true); });
+    StageClock prep_clock;  // --debug timing: each preparation stage
+    log.set_stage_sink([&](const std::string& name, double begin, double) {
+        prep_clock.next("prepare: " + name);
+        prep.update(begin, name, true);
+    });
     auto data = build_fit_data(project, s.setup, log);
+    prep_clock.end();
     prep.done("ready");
     const double prep_s = seconds_since(started);
     // The model's set-up (alignment, fused atlases): a line as it starts, then every 10 s.
@@ -129,6 +134,7 @@ int cmd_fit(int argc, char** argv) {
     for (const auto& line : engine.model_notes()) log.info(line);
     const double setup_s = seconds_since(started) - prep_s;
     log.info("set-up: preparation " + fixed1(prep_s) + " s, model " + fixed1(setup_s) + " s");
+    if (timing_enabled()) add_timing("prepare (all)", prep_s), add_timing("set-up (all)", setup_s);
     const fs::path dir = fit_dir(project);
     if (resume) {
         if (!FitEngine::has_checkpoint(dir))
@@ -181,6 +187,7 @@ int cmd_fit(int argc, char** argv) {
     std::printf("fit %s: %lld steps in %.1f s, reblur PSNR %.2f dB; checkpoint %s\n",
                 snap.status.c_str(), static_cast<long long>(snap.step), snap.elapsed_s,
                 snap.reblur_psnr, (dir / "checkpoint.json").string().c_str());
+    if (timing_enabled()) std::fprintf(stderr, "%s", timing_table().c_str());
     return g_interrupted ? 130 : 0;
 }
 
@@ -193,16 +200,16 @@ static int export_shot(const Args& a, const std::string& what, const std::string
     const WindowedShot shot = WindowedShot::load(a.positional()[0]);
     std::vector<ExportPass> passes;
     if (what == "all") {
-        passes = {ExportPass::Sharp,   ExportPass::Reblur, ExportPass::Alpha,     ExportPass::Coc,
-                  ExportPass::Refocus, ExportPass::Depth,  ExportPass::Confidence};
+        passes = {ExportPass::Sharp,      ExportPass::Reblur,  ExportPass::Alpha,
+                  ExportPass::Coc,        ExportPass::Refocus, ExportPass::Depth,
+                  ExportPass::Confidence, ExportPass::Flow};
     } else {
         passes = {parse_export_pass(what)};
     }
     std::printf("shot %s: %d frames in %zu windows (overlap %d)\n", shot.dir.string().c_str(),
                 shot.frames, shot.windows.size(), shot.overlap);
     for (ExportPass p : passes) {
-        const bool data_pass =
-            p == ExportPass::Coc || p == ExportPass::Uv || p == ExportPass::Depth;
+        const bool data_pass = is_data_pass(p);
         std::string format = a.get("format", data_pass ? "exr" : "png");
         if (what == "all" && data_pass) format = "exr";
         std::string target = out;
@@ -228,7 +235,7 @@ int cmd_export(int argc, char** argv) {
     if (a.positional().size() != 1 || !a.has("out"))
         throw Error(
             "usage: refocus export <project> --what "
-            "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|all "
+            "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|flow|all "
             "[--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>");
     const std::string what = a.get("what", "sharp");
     const std::string out = a.get("out");
@@ -245,7 +252,10 @@ int cmd_export(int argc, char** argv) {
     PrepareLog log;
     StageProgress opening("opening the fit");
     opening.keep_alive(10.0);
+    StageClock open_clock;  // --debug timing
+    open_clock.next("export: open the fit");
     auto engine = open_fitted(project, log);
+    open_clock.end();
     opening.done("ready");
     const ProjectEdits edits = ProjectEdits::load(project);  // atlas edits follow every frame
     if (edits.has_edits()) std::fprintf(stderr, "applying the project's atlas edits\n");
@@ -253,13 +263,13 @@ int cmd_export(int argc, char** argv) {
     if (what == "all") {
         passes = {ExportPass::Sharp,   ExportPass::Reblur, ExportPass::Atlas,
                   ExportPass::Alpha,   ExportPass::Coc,    ExportPass::Uv,
-                  ExportPass::Refocus, ExportPass::Depth,  ExportPass::Confidence};
+                  ExportPass::Refocus, ExportPass::Depth,  ExportPass::Confidence,
+                  ExportPass::Flow};
     } else {
         passes = {parse_export_pass(what)};
     }
     for (ExportPass p : passes) {
-        const bool data_pass =
-            p == ExportPass::Coc || p == ExportPass::Uv || p == ExportPass::Depth;
+        const bool data_pass = is_data_pass(p);
         std::string format = a.get("format", data_pass ? "exr" : "png");
         if (what == "all" && data_pass) format = "exr";
         if (what == "all" && p == ExportPass::Atlas && format == "mp4") format = "png";
@@ -288,6 +298,7 @@ int cmd_export(int argc, char** argv) {
         // Never worse than the shot, and say so (docs/method.md, Confidence and fallback).
         if (share.frames > 0) std::printf("  %s\n", share.summary().c_str());
     }
+    if (timing_enabled()) std::fprintf(stderr, "%s", timing_table().c_str());
     return 0;
 }
 

@@ -49,8 +49,7 @@ std::string run_export(FitEngine& engine, const ExportJob& job, FitWorker& w) {
     for (size_t i = 0; i < job.passes.size(); ++i) {
         const ExportPass pass = parse_export_pass(job.passes[i]);
         std::string fmt = job.format;
-        if ((pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth))
-            fmt = "exr";
+        if (is_data_pass(pass)) fmt = "exr";
         if (pass == ExportPass::Atlas && fmt == "mp4") fmt = "png";
         std::string target = job.out;
         if (fmt == "mp4")

@@ -1,5 +1,6 @@
 #include "fit/fast_model.h"
 #include "util/activity.h"
+#include "util/timing.h"
 
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
@@ -49,6 +50,8 @@ torch::Tensor pixel_grid(int64_t H, int64_t W, int64_t pad) {
 }  // namespace
 
 FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d), m_opts(opts) {
+    StageClock clock;  // --debug timing and the progress lines' activity
+    clock.next("set-up: geometry and weights", "the atlases' geometry and the frames' weights");
     const int64_t T = d.frames, H = d.height, W = d.width;
     const int64_t P = opts.pad;
     m_pixels = pixel_grid(H, W, 0);
@@ -106,7 +109,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         // The subject's track may be off by a few px where the focus crosses it (its flow sees
         // the wall through its blurred edge); the reblurred sharpest views pull it back, which
         // takes corrections up to 10 px (docs/method.md, Model). A centroid track keeps 4 px.
-        set_activity("aligning the subject's frames");
+        clock.next("set-up: align the subject", "aligning the subject's frames");
         refine_alignment(m_fg, fg_weight, d.mask, true, d.legacy_subject_track ? 4.0 : 10.0);
         if (std::any_of(sc.begin(), sc.end(), [](double v) { return v != 1.0; })) {
             char line[200];
@@ -118,8 +121,9 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                 *std::min_element(sc.begin(), sc.end()), *std::max_element(sc.begin(), sc.end()));
             notes.push_back(line);
         }
-        set_activity("fusing the subject's atlas");
+        clock.next("set-up: fuse the subject's atlas", "fusing the subject's atlas");
         init_levels(m_fg, fuse(m_fg, fg_weight));
+        clock.next("set-up: the matte", "fusing the matte");
         // Alpha (paper eq. 1): a matte shared by the frames, in the foreground atlas (half its
         // resolution), plus a per-frame residual (quarter resolution) for what moves on the
         // subject. The shared matte starts as the masks fused toward the frames that saw the
@@ -156,7 +160,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     // fused atlas finds; on a locked-off camera it finds ~0.
     if (!d.static_camera || m_opts.static_align) {
         const auto before = m_bg.to_atlas.clone();
-        set_activity("aligning the background's frames");
+        clock.next("set-up: align the background", "aligning the background's frames");
         refine_alignment(m_bg, bg_weight, bg_region, false, d.static_camera ? 2.0 : 4.0,
                          d.static_camera);
         // Corrections under 0.3 px are ECC's noise on a locked-off camera and are dropped: the
@@ -180,10 +184,10 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                       (long long)fw.points, fw.before_px, fw.after_px);
         notes.push_back(line);
     }
-    set_activity("fusing the background atlas");
+    clock.next("set-up: fuse the background atlas", "fusing the background atlas");
     init_levels(m_bg, fuse(m_bg, bg_weight, {}, true));
     debug_memory("fast model: background fused");
-    set_activity(m_opts.deblur_path ? "the deblurring path" : "");
+    clock.next("set-up: deblurring path", m_opts.deblur_path ? "the deblurring path" : "");
     if (m_opts.deblur_path) {
         auto line =
             make_deblur_path(m_bg, d.layer_radius(false), bg_weight, bg_region, "background");
@@ -195,6 +199,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         }
     }
     m_tv_stale = true;  // made by the first priors() (update_tv_weights)
+    clock.end();
     set_activity("");
 }
 

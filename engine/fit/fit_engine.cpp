@@ -16,6 +16,7 @@
 #include "io/tensor_image.h"
 #include "io/image_file.h"
 #include "util/debug.h"
+#include "util/timing.h"
 #include "util/error.h"
 
 namespace refocus {
@@ -383,6 +384,8 @@ void FitEngine::step() {
         std::lock_guard<std::mutex> lock(m_model_mutex);
         // Learning rate: cosine decay to lr_floor over the budget; a crop step's times its
         // share of the frame to the power crop_lr_power (docs/method.md, Crops).
+        StageClock clock;  // --debug timing
+        clock.next("step: frames and crops");
         auto frames = next_batch();
         const Crops crops = step_crops(frames);
         const double frac = budget_fraction();
@@ -396,6 +399,7 @@ void FitEngine::step() {
             static_cast<torch::optim::AdamOptions&>(groups[i].options()).lr(m_base_lr[i] * factor);
 
         StepRender r;
+        clock.next("step: render and reblur");
         try {
             r = render_step(frames, crops);
         } catch (const Error&) {
@@ -409,15 +413,20 @@ void FitEngine::step() {
         }
         const torch::Tensor& rb = r.reblur;
         const torch::Tensor& target = r.target;
+        clock.next("step: robust weights");
         auto fit_target = robust_target(rb, target, frames, r.scored);
+        clock.next("step: losses and priors");
         auto l1 = (rb - fit_target).abs().mean();
         auto ms = ms_ssim_loss(rb, fit_target);
         auto reco = (1.0 - m_opts.ms_ssim_share) * l1 + m_opts.ms_ssim_share * ms;
         auto loss = m_opts.w_reco * reco + m_model->priors(r.trained, frames, m_step, terms);
         check_divergence(loss.item<double>());  // before the update: the state stays the last good
+        clock.next("step: backward");
         m_optim->zero_grad();
         loss.backward();
+        clock.next("step: optimizer");
         m_optim->step();
+        clock.next("step: figures");
         terms["l1"] = l1.item<double>();
         terms["ms_ssim"] = 1.0 - ms.item<double>();
         loss_v = loss.item<double>();
@@ -427,6 +436,8 @@ void FitEngine::step() {
     if (m_step < 2) debug_memory(m_step == 0 ? "engine: first step" : "engine: second step");
     ++m_step;
     m_elapsed += std::chrono::duration<double>(Clock::now() - t0).count();
+    if (timing_enabled())
+        add_timing("step (all)", std::chrono::duration<double>(Clock::now() - t0).count());
 
     std::lock_guard<std::mutex> lock(m_snap_mutex);
     m_snap.step = m_step;

@@ -8,11 +8,13 @@
 #include "edit/depth.h"
 #include "edit/focus.h"
 #include "edit/recompose.h"
+#include "edit/uv_flow.h"
 #include "io/tensor_image.h"
 #include "io/clip.h"
 #include "io/image_file.h"
 #include "util/error.h"
 #include "util/json_file.h"
+#include "util/timing.h"
 
 namespace refocus {
 
@@ -191,8 +193,15 @@ ExportPass parse_export_pass(const std::string& n) {
     if (n == "refocus") return ExportPass::Refocus;
     if (n == "depth") return ExportPass::Depth;
     if (n == "confidence") return ExportPass::Confidence;
+    if (n == "flow") return ExportPass::Flow;
     throw Error("unknown pass '" + n +
-                "' (use sharp, reblur, atlas, alpha, coc, uv, refocus, depth, confidence or all)");
+                "' (use sharp, reblur, atlas, alpha, coc, uv, refocus, depth, confidence, flow or "
+                "all)");
+}
+
+bool is_data_pass(ExportPass p) {
+    return p == ExportPass::Coc || p == ExportPass::Uv || p == ExportPass::Depth ||
+           p == ExportPass::Flow;
 }
 
 const char* export_pass_name(ExportPass p) {
@@ -213,6 +222,8 @@ const char* export_pass_name(ExportPass p) {
             return "refocus";
         case ExportPass::Depth:
             return "depth";
+        case ExportPass::Flow:
+            return "flow";
         case ExportPass::Confidence:
             return "confidence";
     }
@@ -320,15 +331,19 @@ PassFrames::PassFrames(FitEngine& engine, ExportPass pass, bool three_channels,
 Image PassFrames::frame(int t) {
     const FitData& d = m_engine.data();
     torch::NoGradGuard no_grad;
+    StageClock clock;  // --debug timing
+    clock.next("export: render the layers");
     Layers L = m_engine.render_frame(t);
     const Layers model = L;
     apply_edits(L, m->bg, m->fg);
     // The sharp plate and what is made from it fall back to the shot where the fit failed
     // (the edits stay on top); the reblur and the layers stay the model's.
     if (m_pass == ExportPass::Sharp || m_needs_project) {
+        clock.next("export: output rules (fallback)");
         m_engine.apply_fallback(L, t, &model);
         if (m_opts.fallback) count_fallback(m_engine, t, *m_opts.fallback);
     }
+    clock.next(std::string("export: the ") + export_pass_name(m_pass) + " pass");
     if (m_needs_project) {
         const FrameMaps fm = frame_maps(L);
         return m_pass == ExportPass::Depth
@@ -362,6 +377,9 @@ Image PassFrames::frame(int t) {
                 img = torch::cat({img, torch::zeros_like(img[0]).unsqueeze(0)}, 0);
             break;
         }
+        case ExportPass::Flow:  // forward flow t -> t+1 from the mappings; 0 at the last frame
+            return t + 1 < d.frames ? uv_flow(L, m_engine.render_frame(t + 1))
+                                    : Image(d.width, d.height, 3, 0.0f);
         default:
             throw Error(std::string("--what ") + export_pass_name(m_pass) + " has no frames");
     }
@@ -376,11 +394,11 @@ ClipWriteOptions pass_write_options(ExportPass pass, double fps) {
 }
 
 ClipFormat pass_clip_format(ExportPass pass, const std::string& format) {
-    const bool data_pass =
-        pass == ExportPass::Coc || pass == ExportPass::Uv || pass == ExportPass::Depth;
+    const bool data_pass = is_data_pass(pass);
     if (data_pass && format != "exr" && format != "exr32")
         throw Error(std::string("--what ") + export_pass_name(pass) +
-                    " holds values in px / atlas coordinates / inverse depth: use --format exr");
+                    " holds values in px / atlas coordinates / inverse depth / px of flow: use "
+                    "--format exr");
     return parse_clip_format(format == "exr" && data_pass ? "exr32" : format);
 }
 
@@ -423,6 +441,7 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
     for (int t = first; t <= last; ++t) {
         const Image frame = frames.frame(t);
         refuse_nonfinite(frame, name, t);
+        ScopedTiming timing("export: write");
         writer.write(frame);
         if (o.progress && !o.progress(t - first + 1, last - first + 1)) {
             writer.cancel();

@@ -30,9 +30,12 @@ void write_fit_settings(Project& project, const FitSettings& s, const FitSnapsho
 std::unique_ptr<FitEngine> open_fitted(const Project& project, PrepareLog& log);
 
 // What `refocus export --what` can write.
-enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv, Refocus, Depth, Confidence };
-// sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence
+enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv, Refocus, Depth, Confidence, Flow };
+// sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|flow
 ExportPass parse_export_pass(const std::string& name);
+// Passes of values rather than pictures (coc px, atlas coordinates, inverse depth, flow px):
+// float EXR only.
+bool is_data_pass(ExportPass p);
 const char* export_pass_name(ExportPass p);
 
 struct FocusTrack;  // edit/focus.h
