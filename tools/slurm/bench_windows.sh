@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Seams of a long shot fitted as windows: a synth clip of F frames (default 600 at 320×180,
 # scene rack) through `batch run` as windows of W frames overlapping by O, all windows at once
-# (--jobs = windows), each fitted for M minutes; then the stitched sharp export scored against
+# (as `batch submit` runs them), each fitted for M minutes (or ITERS=N steps); then the stitched sharp export scored against
 # the truth: per-frame PSNR and tPSNR in the overlaps (the seams) against the windows'
 # interiors, and the input's for reference. Needs python3 with numpy and OpenCV (python3-opencv).
 #   tools/slurm/bench_windows.sh [DIR=/tmp/refocus_bench_windows] [F=600] [W=240] [O=16] [M=2]
@@ -10,10 +10,11 @@ here=$(cd "$(dirname "$0")/../.." && pwd)
 bin=$here/build/refocus
 dir=${1:-/tmp/refocus_bench_windows}; F=${2:-600}; W=${3:-240}; O=${4:-16}; M=${5:-2}
 scene=${SCENE:-rack}
+budget="\"minutes\": $M"; [ -n "${ITERS:-}" ] && budget="\"iters\": $ITERS"
 mkdir -p "$dir"; cd "$dir"
 [ -f clip/sharp_0000.png ] || "$bin" synth --scene "$scene" -o clip --size 320x180 --frames "$F" >/dev/null 2>&1
 cat >shots.json <<JSON
-{"shots": [{"name": "long", "clip": "clip/input_%04d.png", "project": "p/long", "minutes": $M,
+{"shots": [{"name": "long", "clip": "clip/input_%04d.png", "project": "p/long", $budget,
             "window": $W, "overlap": $O, "exports": [{"what": "sharp", "out": "out/long"}]}]}
 JSON
 n=$("$bin" batch plan shots.json | grep -c ' new ')
@@ -28,8 +29,8 @@ wait
 t_fit=$(( $(date +%s) - t0 ))
 "$bin" batch run shots.json >stitch.log
 t_all=$(( $(date +%s) - t0 ))
-echo "frames $F, windows $n of ≤$W overlapping by $O, fitted $M min each at once: $t_fit s; with the stitched export $t_all s"
-python3 - "$dir" <<'PY'
+echo "frames $F, windows $n of ≤$W overlapping by $O, fitted at once ($budget each): $t_fit s; with the stitched export $t_all s"
+/usr/bin/python3 - "$dir" <<'PY'
 import json, sys, cv2, numpy as np
 d = sys.argv[1]
 w = json.load(open(f"{d}/p/long/windows.json"))
