@@ -8,6 +8,7 @@
 #include <iterator>
 #include <thread>
 
+#include "batch_util.h"
 #include "test_util.h"
 
 using namespace refocus;
@@ -15,18 +16,8 @@ using namespace refocus::test;
 
 namespace {
 
-std::string bytes_of(const fs::path& p) {
-    std::ifstream f(p, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(f), {});
-}
-
 RunResult cli_env(const std::string& env, const std::string& args) {
     return run(env + std::string(REFOCUS_CLI) + " " + args);
-}
-
-void write(const fs::path& p, const std::string& text) {
-    std::ofstream f(p);
-    f << text;
 }
 
 }  // namespace

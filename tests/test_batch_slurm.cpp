@@ -16,22 +16,13 @@
 #include <thread>
 
 #include "io/image_file.h"
+#include "batch_util.h"
 #include "test_util.h"
 
 using namespace refocus;
 using namespace refocus::test;
 
 namespace {
-
-std::string bytes_of(const fs::path& p) {
-    std::ifstream f(p, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(f), {});
-}
-
-void write(const fs::path& p, const std::string& text) {
-    std::ofstream f(p);
-    f << text;
-}
 
 std::string sh(const fs::path& p) {
     return "'" + p.string() + "'";

@@ -23,8 +23,9 @@ const std::vector<std::pair<std::string, std::string>>& debug_names() {
         {"masks", "which subject masks the track drops or fills, to stderr"},
         {"init-atlas=DIR", "start the fit from DIR/atlas_bg.exr (and atlas_fg.exr)"},
         {"memory", "resident memory (anonymous, and mapped clip arrays) at each stage, to stderr"},
-        {"timing", "wall time by stage (preparation, set-up, each part of a step, export), to "
-                   "stderr at the end"},
+        {"timing",
+         "wall time by stage (preparation, set-up, each part of a step, export), to "
+         "stderr at the end"},
     };
     return names;
 }
