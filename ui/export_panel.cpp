@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <iterator>
 
 #include "session/fit_session.h"
 #include "studio_context.h"
@@ -29,7 +30,13 @@ const PassInfo kPasses[] = {
     {"radius (CoC)", "coc", "The blur radius the fit uses per pixel, px (EXR)"},
     {"inverse depth", "depth", "The fitted inverse depth per pixel (EXR)"},
     {"UV maps", "uv", "Where each pixel samples the atlases (EXR)"},
-    {"reblur", "reblur", "The model's re-blurred frames, to compare with the input"}};
+    {"reblur", "reblur", "The model's re-blurred frames, to compare with the input"},
+    {"confidence", "confidence",
+     "1 where the sharp plate comes from the fit, 0 where it falls back to the shot"},
+    {"optical flow", "flow", "Forward flow to the next frame from the fitted mappings, px (EXR)"}};
+constexpr int kPassCount = int(std::size(kPasses));
+static_assert(kPassCount == int(sizeof(ExportPanelState::pass) / sizeof(bool)),
+              "a checkbox a pass");
 const char* kFormats[] = {"png", "tiff", "exr", "mp4"};
 
 struct ExportJob {
@@ -129,13 +136,13 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
     }
     const FitWorker::Status st = ctx.worker->status();
     ImGui::BeginDisabled(s.running);
-    for (int i = 0; i < 8; ++i) {
+    for (int i = 0; i < kPassCount; ++i) {
         ImGui::Checkbox(kPasses[i].label, &s.pass[i]);
         item_tooltip(kPasses[i].tip);
     }
     ImGui::Combo("format", &s.format, kFormats, 4);
     item_tooltip("png / tiff (16-bit) / exr (half float) image sequences, or an mp4 video");
-    ImGui::TextDisabled("radius, depth and UV are written as EXR; atlases as images");
+    ImGui::TextDisabled("radius, depth, UV and flow are written as EXR; atlases as images");
     const int n = ctx.source ? ctx.source->frames() : 1;
     if (s.last < 0) s.last = n - 1;
     if (ctx.in_frame != s.seen_in || ctx.out_frame != s.seen_out) {
@@ -168,7 +175,7 @@ void draw_export_panel(ExportPanelState& s, StudioContext& ctx) {
         nlohmann::json req = {
             {"format", kFormats[s.format]}, {"out", s.out}, {"first", s.first}, {"last", s.last}};
         std::vector<std::string> what;
-        for (int i = 0; i < 8; ++i)
+        for (int i = 0; i < kPassCount; ++i)
             if (s.pass[i]) what.push_back(kPasses[i].name);
         req["what"] = what;
         ctx.guarded([&] { start_export(s, ctx, req); });

@@ -12,8 +12,8 @@ namespace refocus {
 struct StudioContext;
 
 struct ExportPanelState {
-    bool pass[8] = {true,  true,  false, false,
-                    false, false, false, false};  // in the checkboxes' order
+    bool pass[10] = {true,  true,  false, false, false,
+                     false, false, false, false, false};  // in the checkboxes' order
     int format = 0;
     int first = 0, last = -1;  // -1: the clip's last frame
     char out[1024] = {0};
