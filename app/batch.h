@@ -27,6 +27,8 @@ struct Shot {
     int first = 0, last = -1;        // a window's frames of the clip (-1: the whole clip)
     // The shot's windows once known (windows_of): empty for a shot fitted whole.
     mutable std::shared_ptr<std::vector<ShotWindow>> windows;
+    // The clip's header once read (clip_info_of): a video is decoded to count its frames.
+    mutable std::shared_ptr<ClipInfo> clip_info;
 };
 
 // What a shot's project holds: its fit's state and figures, read from project.json.
@@ -52,6 +54,8 @@ ShotState state_of(const Shot& s);
 // (without exports) in <project>/windows/wNN; `export` stitches them. Known from windows.json
 // once the shot was started, else from the clip's frame count. Empty: fitted whole.
 const std::vector<ShotWindow>& windows_of(const Shot& s);
+// The clip's size and frame count, read once per shot.
+const ClipInfo& clip_info_of(const Shot& s);
 std::vector<Shot> window_shots(const Shot& s);
 // The `refocus` commands that finish the shot: what its project lacks.
 std::vector<std::vector<std::string>> steps_of(const Shot& s, const ShotState& st);

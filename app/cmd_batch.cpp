@@ -276,6 +276,11 @@ std::vector<Shot> read_shots(const fs::path& list) {
     return shots;
 }
 
+const ClipInfo& clip_info_of(const Shot& s) {
+    if (!s.clip_info) s.clip_info = std::make_shared<ClipInfo>(ClipReader::open(s.clip)->info());
+    return *s.clip_info;
+}
+
 const std::vector<ShotWindow>& windows_of(const Shot& s) {
     if (s.windows) return *s.windows;
     auto w = std::make_shared<std::vector<ShotWindow>>();
@@ -294,7 +299,7 @@ const std::vector<ShotWindow>& windows_of(const Shot& s) {
                                        " (keep them, or remove the shot's project)"));
         *w = ws.windows;
     } else if (s.window > 0) {
-        const int frames = ClipReader::open(s.clip)->info().frames;
+        const int frames = clip_info_of(s).frames;
         if (frames > s.window) {
             if (!s.coc.empty() || !s.mask.empty())
                 throw Error(at + ": " + std::to_string(frames) + " frames, over its window of " +

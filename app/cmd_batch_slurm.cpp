@@ -35,7 +35,7 @@ ClipInfo clip_size(const Shot& s) {
         c.width = p.width, c.height = p.height, c.frames = p.frames;
         return c;
     }
-    return ClipReader::open(s.clip)->info();
+    return clip_info_of(s);  // read once, with the shot's windows
 }
 
 }  // namespace
