@@ -235,7 +235,7 @@ int cmd_export(int argc, char** argv) {
     if (a.positional().size() != 1 || !a.has("out"))
         throw Error(
             "usage: refocus export <project> --what "
-            "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|flow|all "
+            "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|flow|parallax|all "
             "[--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>");
     const std::string what = a.get("what", "sharp");
     const std::string out = a.get("out");
@@ -265,6 +265,10 @@ int cmd_export(int argc, char** argv) {
                   ExportPass::Alpha,   ExportPass::Coc,    ExportPass::Uv,
                   ExportPass::Refocus, ExportPass::Depth,  ExportPass::Confidence,
                   ExportPass::Flow};
+        // The parallax field where the fit has one (a moving camera's plane + parallax).
+        std::lock_guard<std::mutex> lock(engine->model_mutex());
+        if (engine->has_atlas() && engine->model().parallax_bg().defined())
+            passes.push_back(ExportPass::Parallax);
     } else {
         passes = {parse_export_pass(what)};
     }
@@ -273,6 +277,7 @@ int cmd_export(int argc, char** argv) {
         std::string format = a.get("format", data_pass ? "exr" : "png");
         if (what == "all" && data_pass) format = "exr";
         if (what == "all" && p == ExportPass::Atlas && format == "mp4") format = "png";
+        if (p == ExportPass::Parallax && (what == "all" || !a.has("format"))) format = "exr";
         std::string target = out;
         if (what == "all") {
             target = (fs::path(out) / export_pass_name(p)).string();

@@ -41,7 +41,8 @@ const Command kCommands[] = {
      "2);\n"
      "           --set: a tuning setting (kept in project.json; --list-settings lists them)"},
     {"export", refocus::cmd_export,
-     "export <project> --what sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|flow|all\n"
+     "export <project> --what "
+     "sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|flow|parallax|all\n"
      "           [--format png|exr|tiff|mp4] [--first N] [--last N] --out <dir-or-file>",
      "write the fit's results: sequences <what>_%04d.<ext> from 0, or an mp4"},
     {"atlas", refocus::cmd_atlas,

@@ -237,6 +237,50 @@ void disc_clip(int w, int h, int n, std::vector<Image>& frames, std::vector<cv::
 }
 }  // namespace
 
+TEST_CASE("camera motion: a large subject walking toward a static camera leaves it static") {
+    // A textured subject covering much of the frame grows and slides over a locked-off wall.
+    // Its tracks reach the frame's outer ring, and the first estimate may follow them; with the
+    // subject's masks left out the camera is the wall's: static.
+    const int w = 160, h = 96, n = 8;
+    const cv::Mat wall = texture(w, h, 51) * 0.5 + mondrian(w, h, 52) * 0.5;
+    const cv::Mat body = texture(200, 200, 53, 0.9) * 0.7 + 0.2;
+    std::vector<Image> frames, masks;
+    for (int t = 0; t < n; ++t) {
+        cv::Mat f = wall.clone();
+        Image m(w, h, 1, 0.0f);
+        const double s = 1.0 + 0.06 * t, cx = 74 + 2.0 * t, cy = 50;  // nearer every frame
+        const double hw = 46 * s, hh = 36 * s;
+        for (int y = 0; y < h; ++y)
+            for (int x = 0; x < w; ++x)
+                if (std::abs(x - cx) <= hw && std::abs(y - cy) <= hh) {
+                    const int u = std::clamp(int(100 + (x - cx) / s), 0, 199),
+                              v = std::clamp(int(100 + (y - cy) / s), 0, 199);
+                    f.at<cv::Vec3f>(y, x) = body.at<cv::Vec3f>(v, u);
+                    m.pixels[y * w + x] = 1.0f;
+                }
+        frames.push_back(from_mat(f));
+        masks.push_back(std::move(m));
+    }
+    PrepareLog log;
+    const ClipFlow flow = compute_clip_flow(frames);
+    const CameraMotion all = estimate_camera_motion(frames, &flow, MotionOptions{}, log);
+    const CameraMotion bg = estimate_camera_motion(frames, &flow, MotionOptions{}, log, &masks);
+    MESSAGE("corners move up to " << all.max_displacement_px << " px with the subject's tracks, "
+                                  << bg.max_displacement_px << " px without");
+    CHECK(bg.is_static);
+    CHECK(bg.max_displacement_px <= all.max_displacement_px + 1e-9);
+
+    // The preparation does the same with its own masks: the first estimate's, then the
+    // background's, and the decision follows the background.
+    PrepareOptions opts;
+    opts.estimate_coc = false;
+    PrepareLog log2;
+    const PrepareResult r = prepare_clip(frames, opts, log2);
+    for (const auto& l : r.log)
+        if (l.find("camera") != std::string::npos) MESSAGE(l);
+    CHECK(r.decisions.static_camera);
+}
+
 TEST_CASE("masks: automatic mask of a moving disc over a panned texture") {
     const int w = 128, h = 72, n = 8;
     std::vector<Image> frames;

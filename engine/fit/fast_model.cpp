@@ -184,6 +184,17 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                       (long long)fw.points, fw.before_px, fw.after_px);
         notes.push_back(line);
     }
+    if (m_bg.learn_warp && m_opts.parallax && T > 1) {
+        // The flow on and near the subject is the subject's, not the wall's behind it: its mask
+        // grown by 1/40 of the frame leaves it out.
+        const int64_t g = std::max<int64_t>(1, std::min(H, W) / 40);
+        const auto line = make_parallax(m_bg, [&](int64_t t) {
+            if (!m_two_layers) return bg_region[t];
+            return 1.0 - F::max_pool2d(d.mask[t].unsqueeze(0),
+                                       F::MaxPool2dFuncOptions(2 * g + 1).stride(1).padding(g))[0];
+        });
+        if (!line.empty()) notes.push_back(line);
+    }
     clock.next("set-up: fuse the background atlas", "fusing the background atlas");
     init_levels(m_bg, fuse(m_bg, bg_weight, {}, true));
     debug_memory("fast model: background fused");
@@ -237,7 +248,7 @@ torch::Tensor FastModel::map_coords(const Atlas& a, const std::vector<int64_t>& 
     auto px = xy.view({B, 2, H + 2 * pad, W + 2 * pad});
     if (a.learn_warp || a.warp.requires_grad())  // the residual warp is held constant past the edge
         px = px + a.scale * pad_edges(upsample(a.warp.index_select(0, idx), H, W, true), pad);
-    return px.permute({0, 2, 3, 1});  // [B,H,W,2]
+    return add_parallax(a, idx, px).permute({0, 2, 3, 1});  // [B,H,W,2]
 }
 
 torch::Tensor FastModel::to_grid(const Atlas& a, const torch::Tensor& px) const {
@@ -271,7 +282,15 @@ torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
     // through warps (from the flow); later fusions (TV weights, coverage) read the geometry,
     // which a resumed fit must find as the uninterrupted one did.
     std::function<torch::Tensor(int64_t)> offset;
-    if (with_warp && a.warp.defined() && a.warp.abs().max().item<double>() > 0)
+    if (with_warp && a.parallax.defined())  // warps and parallax: the mapping less its homography
+        offset = [&](int64_t t) {
+            const int64_t H = m_data.height, W = m_data.width;
+            const auto& pixels = P ? m_pixels_pad : m_pixels;
+            auto p = torch::matmul(a.to_atlas[t], pixels.t());  // [3,N]
+            auto base = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).view({2, H + 2 * P, W + 2 * P});
+            return map_coords(a, {t}, P)[0].permute({2, 0, 1}) - base;
+        };
+    else if (with_warp && a.warp.defined() && a.warp.abs().max().item<double>() > 0)
         offset = [&](int64_t t) {
             const int64_t H = m_data.height, W = m_data.width;
             return (a.scale * pad_edges(upsample(a.warp[t].unsqueeze(0), H, W, true), P))[0];
@@ -318,6 +337,10 @@ std::vector<ParamGroup> FastModel::param_groups() {
     if (m_bg.learn_warp) warp.params.push_back(m_bg.warp);
     if (m_two_layers) warp.params.push_back(m_fg.warp);
     if (!warp.params.empty()) g.push_back(warp);
+    if (m_bg.parallax.defined()) {
+        g.push_back(ParamGroup{{m_bg.parallax.set_requires_grad(true)}, m_opts.lr_parallax});
+        g.push_back(ParamGroup{{m_bg.epipole.set_requires_grad(true)}, m_opts.lr_epipole});
+    }
     if (m_two_layers) {
         g.push_back(ParamGroup{{m_alpha_logit.set_requires_grad(true)}, m_opts.lr_alpha});
         g.push_back(ParamGroup{{m_alpha_atlas.set_requires_grad(true)},
@@ -457,6 +480,11 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     }
     total = total + m_opts.w_warp * warp_reg;
     terms["warp"] = warp_reg.item<double>();
+    if (m_bg.parallax.defined()) {
+        auto reg = parallax_smoothness(m_bg.parallax);
+        total = total + m_opts.w_parallax * reg;
+        terms["parallax"] = reg.item<double>();
+    }
     // Temporal smoothness of the per-frame residuals (off by default: FastModelOptions::w_temporal
     // says why; the shared atlases already keep the frames consistent).
     const int64_t T = m_data.frames;
@@ -577,6 +605,29 @@ void FastModel::adopt_geometry(Atlas& a, const std::string& name,
             it->second.size(1) == 2 && !it->second.sizes().equals(a.warp.sizes()))
             a.warp = torch::zeros_like(it->second).set_requires_grad(a.warp.requires_grad());
     }
+    {  // plane + parallax: the checkpoint's, whether or not this build's settings would make it
+        auto g = s.find(name + "_parallax"), e = s.find(name + "_epipole"),
+             c = s.find(name + "_parallax_centre");
+        if (g != s.end() && e != s.end() && c != s.end()) {
+            if (g->second.dim() != 4 || g->second.size(0) != 1 || g->second.size(1) != 1 ||
+                !e->second.sizes().equals({a.to_atlas.size(0), 3}) ||
+                !c->second.sizes().equals({a.to_atlas.size(0), 2}))
+                throw Error("checkpoint parallax of the " + name + " atlas has shape " +
+                            c10::str(g->second.sizes()) + " / " + c10::str(e->second.sizes()));
+            const bool learn = a.parallax.defined() && a.parallax.requires_grad();
+            a.parallax = torch::zeros_like(g->second).set_requires_grad(learn);
+            a.epipole = torch::zeros_like(e->second).set_requires_grad(learn);
+            a.centre = torch::zeros_like(c->second);
+            a.parallax_radius =
+                0.5 *
+                std::sqrt(double(m_data.width * m_data.width + m_data.height * m_data.height)) *
+                a.scale;
+        } else if (a.parallax.defined()) {  // fitted without: γ = 0 renders as it did
+            s[name + "_parallax"] = torch::zeros_like(a.parallax);
+            s[name + "_epipole"] = a.epipole.detach().clone();
+            s[name + "_parallax_centre"] = a.centre;
+        }
+    }
     if (a.deblur.defined()) {
         auto it = s.find(name + "_deblur");
         if (it == s.end())  // a checkpoint without the path: its texels hold the whole atlas
@@ -592,6 +643,11 @@ std::map<std::string, torch::Tensor> FastModel::state() {
         s["bg_level" + std::to_string(l)] = m_bg.levels[l];
     s["bg_warp"] = m_bg.warp;
     if (m_bg.deblur.defined()) s["bg_deblur"] = m_bg.deblur;
+    if (m_bg.parallax.defined()) {
+        s["bg_parallax"] = m_bg.parallax;
+        s["bg_epipole"] = m_bg.epipole;
+        s["bg_parallax_centre"] = m_bg.centre;
+    }
     s["bg_geometry"] = geometry(m_bg);
     s["bg_to_atlas"] = m_bg.to_atlas;
     if (m_two_layers) {

@@ -14,6 +14,8 @@
 //     saw at different sub-pixel phases is resolved rather than lost to resampling.
 // Initialisation fuses the input frames into the atlases weighted toward the frames that saw
 // each atlas pixel sharpest (weight (r + ½)^−4), which is where multi-frame deblurring starts.
+#include <functional>
+
 #include "model/fit_model.h"
 
 namespace refocus {
@@ -26,6 +28,16 @@ struct FastModelOptions {
     // homography's error.
     bool flow_warp = false;
     int flow_warp_cell_px = 8;
+    // Plane + parallax (Irani & Anandan 1996; Sawhney 1994) on a moving camera's background: frame
+    // t sees atlas point u displaced by γ(u)·(a_t + b_t·(u − c_t)/R): γ one field for the clip
+    // (relative inverse depth, a value per cell of `parallax_cell_px` frame px), (a_t, b_t) the
+    // frame's epipole (lateral and forward translation, 3 numbers), c_t the frame's centre in the
+    // atlas, R its half diagonal. Off, or on a static camera: the homography and warp alone.
+    bool parallax = false;
+    int parallax_cell_px = 8;
+    double lr_parallax = 0.05;  // γ, px per step at the frame of largest camera motion
+    double lr_epipole = 0.002;  // (a_t, b_t), normalised to at most 1 over the clip
+    double w_parallax = 0.005;  // γ smoothness
     double lr_atlas = 0.01;
     double lr_warp = 0.05;  // px per step (Adam)
     double lr_alpha = 0.05;
@@ -94,6 +106,7 @@ class FastModel : public FitModel {
                          LossTerms& terms) override;
     torch::Tensor atlas_bg() override;
     torch::Tensor atlas_fg() override;
+    torch::Tensor parallax_bg() override;
     void set_atlas_bg(const torch::Tensor& rgb) override;
     void set_atlas_fg(const torch::Tensor& rgb) override;
     std::map<std::string, torch::Tensor> state() override;
@@ -108,6 +121,10 @@ class FastModel : public FitModel {
         torch::Tensor to_atlas;             // [T,3,3] float32: frame pixel → atlas pixel
         torch::Tensor warp;                 // [T,2,gh,gw] residual, px
         bool learn_warp = false;
+        torch::Tensor parallax;       // [1,1,gh,gw] γ over the atlas (undefined: no parallax)
+        torch::Tensor epipole;        // [T,3] (a_x, a_y, b) per frame
+        torch::Tensor centre;         // [T,2] each frame's centre in atlas px
+        double parallax_radius = 1;   // R: half the frame's diagonal in atlas px
         torch::Tensor tv_weight;      // [1,1,Ha,Wa] TV weight per texel (undefined: 1)
         torch::Tensor deblur;         // [1,3,h,w] the deblurring path's texels, frame px
         torch::Tensor deblur_kernel;  // [3,1,k,k] its fixed filter
@@ -124,6 +141,16 @@ class FastModel : public FitModel {
                                     const std::vector<int64_t>& x0, const std::vector<int64_t>& y0,
                                     int64_t h, int64_t w) const;
     torch::Tensor to_grid(const Atlas& a, const torch::Tensor& px) const;  // → [-1,1]
+    // Frames' atlas coordinates px [B,2,h,w] moved by the plane + parallax term (identity where
+    // the atlas has none).
+    torch::Tensor add_parallax(const Atlas& a, const torch::Tensor& idx,
+                               const torch::Tensor& px) const;
+    // Gives `a` its parallax field and epipoles, started from the homographies: a_t the frame
+    // centre's travel in the atlas since frame 0, b_t its change of scale; γ = 0 (the first step
+    // renders what the homographies do) unless the flow says more. Returns the log line.
+    // With the flow, γ and the epipoles start from it (flow_warp.h) over `region(t)`.
+    std::string make_parallax(Atlas& a, const std::function<torch::Tensor(int64_t)>& region);
+    static torch::Tensor parallax_smoothness(const torch::Tensor& g);
     // Frames over windows (render_window), or with `pad` ≥ 0 the frames padded by `pad` px,
     // sampled over the whole padded frame (render_padded).
     Layers render_region(const std::vector<int64_t>& frames, const std::vector<int64_t>& x0,

@@ -58,7 +58,7 @@ torch::Tensor FastModel::map_coords_window(const Atlas& a, const std::vector<int
     if (a.learn_warp || a.warp.requires_grad())  // the residual warp is held constant past the edge
         px = px + a.scale * upsample_window(a.warp.index_select(0, idx), m_data.height,
                                             m_data.width, x0, y0, h, w, true);
-    return px.permute({0, 2, 3, 1});
+    return add_parallax(a, idx, px).permute({0, 2, 3, 1});
 }
 
 torch::Tensor FastModel::bootstrap_l1(const Layers& layers,

@@ -39,6 +39,49 @@ torch::Tensor sample(const torch::Tensor& w, const torch::Tensor& px, int64_t H,
     return F::grid_sample(w, corner_grid(px, H, W), opts)[0].view({2, -1}).t();  // [n,2]
 }
 
+// The flow's correspondences between neighbouring frames, in the layer in both frames, every
+// `stride` px, with their disagreement through the homographies.
+std::vector<Pair> collect_pairs(const torch::Tensor& to_atlas, const torch::Tensor& flow,
+                                const torch::Tensor& valid,
+                                const std::function<torch::Tensor(int64_t)>& region, int stride,
+                                int64_t& points) {
+    const int64_t T = to_atlas.size(0), H = flow.size(2), W = flow.size(3);
+    std::vector<Pair> pairs;
+    points = 0;
+    torch::NoGradGuard no_grad;
+    auto ys = torch::arange(stride / 2, H, stride, torch::kLong);
+    auto xs = torch::arange(stride / 2, W, stride, torch::kLong);
+    auto g = torch::meshgrid({ys, xs}, "ij");
+    auto iy = g[0].flatten(), ix = g[1].flatten();
+    auto lin = iy * W + ix;
+    auto p_all = torch::stack({ix, iy}, 1).to(torch::kFloat32);
+    auto h = to_atlas.to(torch::kFloat32);
+    torch::Tensor next_region = region(0)[0];
+    for (int64_t t = 0; t + 1 < T; ++t) {
+        auto here = next_region;
+        next_region = region(t + 1)[0];
+        auto f = flow[t].reshape({2, -1}).index_select(1, lin).t();  // [N,2]
+        auto ok = valid[t][0].flatten().index_select(0, lin) > 0.5;
+        ok = ok & (here.flatten().index_select(0, lin) > 0.5);
+        auto q = p_all + f;
+        auto qx = q.select(1, 0), qy = q.select(1, 1);
+        ok = ok & (qx >= 0) & (qx <= W - 1) & (qy >= 0) & (qy <= H - 1);
+        auto qi = qy.round().clamp(0, H - 1).to(torch::kLong) * W +
+                  qx.round().clamp(0, W - 1).to(torch::kLong);
+        ok = ok & (next_region.flatten().index_select(0, qi) > 0.5);
+        auto sel = ok.nonzero().flatten();
+        if (sel.numel() == 0) continue;
+        Pair pr;
+        pr.t = t;
+        pr.p = p_all.index_select(0, sel);
+        pr.q = q.index_select(0, sel);
+        pr.d = apply_h(h[t], pr.p) - apply_h(h[t + 1], pr.q);
+        points += sel.numel();
+        pairs.push_back(std::move(pr));
+    }
+    return pairs;
+}
+
 }  // namespace
 
 FlowWarpResult warps_from_flow(const torch::Tensor& to_atlas, double scale,
@@ -49,40 +92,8 @@ FlowWarpResult warps_from_flow(const torch::Tensor& to_atlas, double scale,
     FlowWarpResult res;
     res.warp = torch::zeros({T, 2, gh, gw});
     if (T < 2 || flow.size(0) != T - 1) return res;
-    std::vector<Pair> pairs;
-    {
-        torch::NoGradGuard no_grad;
-        auto ys = torch::arange(stride / 2, H, stride, torch::kLong);
-        auto xs = torch::arange(stride / 2, W, stride, torch::kLong);
-        auto g = torch::meshgrid({ys, xs}, "ij");
-        auto iy = g[0].flatten(), ix = g[1].flatten();
-        auto lin = iy * W + ix;
-        auto p_all = torch::stack({ix, iy}, 1).to(torch::kFloat32);
-        auto h = to_atlas.to(torch::kFloat32);
-        torch::Tensor next_region = region(0)[0];
-        for (int64_t t = 0; t + 1 < T; ++t) {
-            auto here = next_region;
-            next_region = region(t + 1)[0];
-            auto f = flow[t].reshape({2, -1}).index_select(1, lin).t();  // [N,2]
-            auto ok = valid[t][0].flatten().index_select(0, lin) > 0.5;
-            ok = ok & (here.flatten().index_select(0, lin) > 0.5);
-            auto q = p_all + f;
-            auto qx = q.select(1, 0), qy = q.select(1, 1);
-            ok = ok & (qx >= 0) & (qx <= W - 1) & (qy >= 0) & (qy <= H - 1);
-            auto qi = qy.round().clamp(0, H - 1).to(torch::kLong) * W +
-                      qx.round().clamp(0, W - 1).to(torch::kLong);
-            ok = ok & (next_region.flatten().index_select(0, qi) > 0.5);
-            auto sel = ok.nonzero().flatten();
-            if (sel.numel() == 0) continue;
-            Pair pr;
-            pr.t = t;
-            pr.p = p_all.index_select(0, sel);
-            pr.q = q.index_select(0, sel);
-            pr.d = apply_h(h[t], pr.p) - apply_h(h[t + 1], pr.q);
-            res.points += sel.numel();
-            pairs.push_back(std::move(pr));
-        }
-    }
+    const std::vector<Pair> pairs =
+        collect_pairs(to_atlas, flow, valid, region, stride, res.points);
     if (res.points == 0) return res;
     torch::AutoGradMode grad(true);  // the model is built under a NoGradGuard
     auto w = torch::zeros({T, 2, gh, gw}, torch::requires_grad());
@@ -116,6 +127,82 @@ FlowWarpResult warps_from_flow(const torch::Tensor& to_atlas, double scale,
     res.after_px = disagreement(false).item<double>();
     res.warp = w.detach().clone();
 
+    return res;
+}
+
+ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tensor& flow,
+                                const torch::Tensor& valid,
+                                const std::function<torch::Tensor(int64_t)>& region,
+                                const torch::Tensor& epipole, const torch::Tensor& centre,
+                                double radius, int64_t atlas_w, int64_t atlas_h, int64_t gh,
+                                int64_t gw, int iters, int stride) {
+    const int64_t T = to_atlas.size(0);
+    ParallaxInit res;
+    res.parallax = torch::zeros({1, 1, gh, gw});
+    res.epipole = epipole.clone();
+    if (T < 2 || flow.size(0) != T - 1) return res;
+    const std::vector<Pair> pairs =
+        collect_pairs(to_atlas, flow, valid, region, stride, res.points);
+    if (res.points == 0) return res;
+    // Each correspondence's atlas point (frame t's, through its homography) and where it reads γ.
+    std::vector<torch::Tensor> at, grid;
+    {
+        torch::NoGradGuard no_grad;
+        auto h = to_atlas.to(torch::kFloat32);
+        auto norm = torch::tensor({2.0f / float(atlas_w), 2.0f / float(atlas_h)});
+        for (const auto& pr : pairs) {
+            at.push_back(apply_h(h[pr.t], pr.p));
+            grid.push_back(((at.back() + 0.5) * norm - 1.0).view({1, 1, -1, 2}));
+        }
+    }
+    torch::AutoGradMode grad(true);  // the model is built under a NoGradGuard
+    auto g = torch::zeros({1, 1, gh, gw}, torch::requires_grad());
+    auto e = epipole.clone().set_requires_grad(true);
+    // γ is a property of the scene with edges where depth jumps (a pillar before a wall): a
+    // lighter smoothness than the warps', whose grid is per frame.
+    const double smooth = 0.001, size = 1e-4, eps2 = 0.25;
+    const auto opts = F::GridSampleFuncOptions()
+                          .mode(torch::kBilinear)
+                          .padding_mode(torch::kBorder)
+                          .align_corners(false);
+    // h_t(p) − h_{t+1}(q) = γ(u)·(d_{t+1}(u) − d_t(u)), d_t(u) = a_t + b_t·(u − c_t)/R.
+    auto disagreement = [&](bool robust) {
+        torch::Tensor sum = torch::zeros({});
+        for (size_t i = 0; i < pairs.size(); ++i) {
+            const auto& pr = pairs[i];
+            auto gam = F::grid_sample(g, grid[i], opts).view({-1, 1});  // [n,1]
+            auto dir = [&](int64_t t) {
+                return e[t].narrow(0, 0, 2).view({1, 2}) + e[t].narrow(0, 2, 1).view({1, 1}) *
+                                                               (at[i] - centre[t].view({1, 2})) /
+                                                               radius;
+            };
+            auto r = pr.d - gam * (dir(pr.t + 1) - dir(pr.t));
+            auto n2 = r.pow(2).sum(1);
+            sum = sum + (robust ? (n2 + eps2).sqrt() : n2.sqrt()).sum();
+        }
+        return sum / double(res.points);
+    };
+    {
+        torch::NoGradGuard no_grad;
+        res.before_px = disagreement(false).item<double>();
+    }
+    torch::optim::Adam opt_g({g}, torch::optim::AdamOptions(0.3));
+    torch::optim::Adam opt_e({e}, torch::optim::AdamOptions(0.0));
+    for (int i = 0; i < iters; ++i) {
+        opt_g.zero_grad();
+        opt_e.zero_grad();
+        auto dx = g.narrow(3, 1, gw - 1) - g.narrow(3, 0, gw - 1);
+        auto dy = g.narrow(2, 1, gh - 1) - g.narrow(2, 0, gh - 1);
+        auto loss = disagreement(true) + smooth * (dx.pow(2).mean() + dy.pow(2).mean()) +
+                    size * g.pow(2).mean();
+        loss.backward();
+        opt_g.step();
+        opt_e.step();
+    }
+    torch::NoGradGuard done;
+    res.after_px = disagreement(false).item<double>();
+    res.parallax = g.detach().clone();
+    res.epipole = e.detach().clone();
     return res;
 }
 

@@ -32,4 +32,24 @@ FlowWarpResult warps_from_flow(const torch::Tensor& to_atlas, double scale,
                                const std::function<torch::Tensor(int64_t)>& region, int64_t gh,
                                int64_t gw, int iters = 400, int stride = 3);
 
+struct ParallaxInit {
+    torch::Tensor parallax;  // [1,1,gh,gw] γ over the atlas (grid_sample, align_corners false)
+    torch::Tensor epipole;   // [T,3] refined
+    double before_px = 0;    // mean disagreement of the flow's correspondences, γ = 0
+    double after_px = 0;     // ... with γ and the epipoles
+    int64_t points = 0;
+};
+
+// Plane + parallax (fast_model.h) started from the flow: γ and the epipoles minimising over the
+// same correspondences as warps_from_flow
+//     Σ ρ(|h_t(p) − h_{t+1}(p + f) − γ(u)·(d_{t+1}(u) − d_t(u))|) + λ Σ |∇γ|² + μ Σ γ²,
+// u = h_t(p), d_t(u) = a_t + b_t·(u − c_t)/R, from `epipole` [T,3] (a_x, a_y, b) and `centre`
+// [T,2] (atlas px). One γ for the clip: the correspondences of every pair constrain it.
+ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tensor& flow,
+                                const torch::Tensor& valid,
+                                const std::function<torch::Tensor(int64_t)>& region,
+                                const torch::Tensor& epipole, const torch::Tensor& centre,
+                                double radius, int64_t atlas_w, int64_t atlas_h, int64_t gh,
+                                int64_t gw, int iters = 150, int stride = 4);
+
 }  // namespace refocus

@@ -124,6 +124,8 @@ class FitModel {
     // layer). set_* replaces the atlas content (imported repaint) keeping the mapping.
     virtual torch::Tensor atlas_bg() = 0;
     virtual torch::Tensor atlas_fg() = 0;
+    // The background's parallax field over its atlas, [1,H,W] (undefined: the model has none).
+    virtual torch::Tensor parallax_bg() { return {}; }
     virtual void set_atlas_bg(const torch::Tensor& rgb) = 0;
     virtual void set_atlas_fg(const torch::Tensor& rgb) = 0;
     // A model that is not trained by gradient steps on the reconstruction loss (perframe, which

@@ -96,7 +96,10 @@ double mean_residual(const cv::Mat& H, const std::vector<cv::Point2f>& src,
 }
 
 // Homography from frame t+1 to frame t from tracked corners; returns inlier count (0 = failed).
-int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions& o, cv::Mat& H) {
+// `keep0`/`keep1` (may be empty): 8-bit masks of where frame t / t+1 may hold a track (the
+// background); a corner outside keep0, or tracked outside keep1, is not the camera's.
+int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions& o, cv::Mat& H,
+                       const cv::Mat& keep0 = {}, const cv::Mat& keep1 = {}) {
     // Corners per cell of a grid, each cell's quality threshold relative to its own best corner:
     // one frame-wide threshold puts nearly every corner on whatever is in focus, and when that is
     // a moving subject in front of a blurred wall, RANSAC's consensus is the subject's motion
@@ -110,8 +113,11 @@ int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions
             const int y0 = cy * g0.rows / gy, y1 = (cy + 1) * g0.rows / gy;
             if (x1 - x0 < 8 || y1 - y0 < 8) continue;
             std::vector<cv::Point2f> cell;
-            cv::goodFeaturesToTrack(g0(cv::Rect(x0, y0, x1 - x0, y1 - y0)), cell, per_cell,
-                                    o.feature_quality_cell, o.feature_min_distance);
+            const cv::Rect r(x0, y0, x1 - x0, y1 - y0);
+            if (!keep0.empty() && cv::countNonZero(keep0(r)) < 16) continue;
+            cv::goodFeaturesToTrack(g0(r), cell, per_cell, o.feature_quality_cell,
+                                    o.feature_min_distance,
+                                    keep0.empty() ? cv::noArray() : cv::InputArray(keep0(r)));
             for (const auto& p : cell) p0.emplace_back(p.x + x0, p.y + y0);
         }
     if (int(p0.size()) < o.min_inliers) return 0;
@@ -127,6 +133,8 @@ int pair_from_features(const cv::Mat& g0, const cv::Mat& g1, const MotionOptions
         if (!st1[i] || !st2[i]) continue;
         if (cv::norm(back[i] - p0[i]) > o.track_fb_max_px) continue;
         if (p1[i].x < 0 || p1[i].y < 0 || p1[i].x > g1.cols - 1 || p1[i].y > g1.rows - 1) continue;
+        if (!keep1.empty() && !keep1.at<unsigned char>(int(p1[i].y + 0.5f), int(p1[i].x + 0.5f)))
+            continue;
         src.push_back(p1[i]);
         dst.push_back(p0[i]);
     }
@@ -286,7 +294,8 @@ void smooth_weak_pairs(CameraMotion& cm, const MotionOptions& o, int w, int h) {
 }  // namespace
 
 CameraMotion estimate_camera_motion(const std::vector<Image>& frames, const ClipFlow* flow,
-                                    const MotionOptions& opts, PrepareLog& log) {
+                                    const MotionOptions& opts, PrepareLog& log,
+                                    const std::vector<Image>* subject) {
     CameraMotion cm;
     const int n = int(frames.size());
     if (n == 0) return cm;
@@ -297,11 +306,29 @@ CameraMotion estimate_camera_motion(const std::vector<Image>& frames, const Clip
     const int w = frames[0].width, h = frames[0].height;
     std::vector<cv::Mat> grey;
     for (const auto& f : frames) grey.push_back(srgb_grey8(f));
+    // Where the subject is (grown by its motion's reach), no track is the camera's.
+    std::vector<cv::Mat> keep(n);
+    if (subject && int(subject->size()) == n) {
+        const int grow = std::max(3, std::min(w, h) / 40);
+        const cv::Mat k =
+            cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * grow + 1, 2 * grow + 1));
+        for (int t = 0; t < n; ++t) {
+            const Image& m = (*subject)[t];
+            if (m.width != w || m.height != h) continue;
+            cv::Mat on(h, w, CV_8U);
+            for (int y = 0; y < h; ++y)
+                for (int x = 0; x < w; ++x)
+                    on.at<unsigned char>(y, x) =
+                        m.pixels[(y * w + x) * m.channels] > 0.1f ? 255 : 0;
+            cv::dilate(on, on, k);
+            keep[t] = 255 - on;
+        }
+    }
 
     std::vector<Homography> to0(n);  // frame t → frame 0
     for (int t = 0; t + 1 < n; ++t) {
         cv::Mat H;
-        int inliers = pair_from_features(grey[t], grey[t + 1], opts, H);
+        int inliers = pair_from_features(grey[t], grey[t + 1], opts, H, keep[t], keep[t + 1]);
         std::string source = "features";
         if (inliers == 0 && flow && size_t(t) < flow->bwd.size()) {
             inliers = pair_from_flow(flow->bwd[t], flow->bwd_valid[t], opts, H);

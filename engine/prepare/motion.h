@@ -40,6 +40,11 @@ struct MotionOptions {
     int weak_pair_reach = 3;       // ... interpolated from well-tracked pairs this many frames away
     int min_inliers = 12;          // fewer → fall back to the flow, then to identity
     double static_max_px = 0.5;    // camera is static if no corner moves more than this
+    // A camera read as moving is tested again on the still part of the frame (prepare.cpp),
+    // where at least this share of the frame's edge does not move: a subject that fills much of
+    // the frame otherwise drags the estimate along.
+    bool background_only = true;
+    double still_ring_share = 0.5;
 };
 
 struct CameraMotion {
@@ -52,9 +57,12 @@ struct CameraMotion {
     double max_displacement_px = 0.0;      // the largest such corner motion
 };
 
-// `flow` (may be null) serves the fallback. Frames: linear RGB, one size.
+// `flow` (may be null) serves the fallback. Frames: linear RGB, one size. With `subject`
+// (per-frame masks, > 0.1 inside), no feature on or near the subject is tracked: the camera's
+// motion is the background's.
 CameraMotion estimate_camera_motion(const std::vector<Image>& frames, const ClipFlow* flow,
-                                    const MotionOptions& opts, PrepareLog& log);
+                                    const MotionOptions& opts, PrepareLog& log,
+                                    const std::vector<Image>* subject = nullptr);
 
 // The flow the homography predicts: h_ab maps frame a to frame b, so f(x) = h_ab(x) − x.
 // 2-channel image of size width x height.

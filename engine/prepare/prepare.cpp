@@ -1,6 +1,7 @@
 #include "prepare/prepare.h"
 #include "prepare/proxy.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -16,6 +17,40 @@ namespace refocus {
 using json = nlohmann::json;
 
 namespace {
+
+// The share of the frame's outer ring (a band of 1/8 of the frame's size) whose consistent flow
+// is under 0.5 px, the median over the pairs; `moving` gets per frame 1 where the flow moves
+// (or is not consistent), the rest being the still part a static camera would see.
+double still_ring_share(const ClipFlow& flow, std::vector<Image>& moving) {
+    std::vector<double> shares;
+    const int pairs = int(flow.fwd.size());
+    moving.clear();
+    for (int t = 0; t < pairs; ++t) {
+        const Image& f = flow.fwd[t];
+        const Image& v = flow.fwd_valid[t];
+        const int w = f.width, h = f.height, bx = std::max(1, w / 8), by = std::max(1, h / 8);
+        Image m(w, h, 1, 1.0f);
+        double still = 0, all = 0;
+        for (int y = 0; y < h; ++y)
+            for (int x = 0; x < w; ++x) {
+                const size_t p = size_t(y) * w + x;
+                const float fx = f.pixels[p * f.channels], fy = f.pixels[p * f.channels + 1];
+                const bool ok = v.pixels[p * v.channels] > 0.5f;
+                const bool is_still = ok && fx * fx + fy * fy < 0.25f;
+                m.pixels[p] = is_still ? 0.0f : 1.0f;
+                if (x < bx || x >= w - bx || y < by || y >= h - by) {
+                    all += ok;
+                    still += is_still;
+                }
+            }
+        shares.push_back(all > 0 ? still / all : 0.0);
+        moving.push_back(std::move(m));
+    }
+    if (shares.empty()) return 0.0;
+    moving.push_back(moving.back());  // the last frame: its predecessor's
+    std::nth_element(shares.begin(), shares.begin() + shares.size() / 2, shares.end());
+    return shares[shares.size() / 2];
+}
 
 constexpr int kPrepareVersion = 1;
 
@@ -78,6 +113,25 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
                  " from flow, " + std::to_string(nid) + " identity); corners move up to " +
                  fmt("%.2f", res.motion.max_displacement_px) + " px (" +
                  fmt("%.2f", seconds_since(t0)) + " s)");
+    }
+    // A static camera tested against the still part of the frame: a subject that fills much of
+    // it drags the tracks' consensus along (corners "move" by its motion), while the wall at the
+    // frame's edge does not move at all.
+    if (opts.motion.background_only && n > 1 && !res.motion.is_static) {
+        std::vector<Image> moving;
+        const double ring = still_ring_share(res.flow, moving);
+        if (ring >= opts.motion.still_ring_share) {
+            PrepareLog quiet;  // its per-pair fallbacks were said by the first estimate
+            CameraMotion bg =
+                estimate_camera_motion(frames, &res.flow, opts.motion, quiet, &moving);
+            log.info("camera motion: " + fmt("%.0f", 100 * ring) +
+                     "% of the frame's edge stands still; from the still part alone the corners "
+                     "move up to " +
+                     fmt("%.2f", bg.max_displacement_px) + " px" +
+                     (bg.is_static ? ": the camera is static, what moves is the subject"
+                                   : ": the first estimate stays"));
+            if (bg.is_static) res.motion = bg;
+        }
     }
     res.decisions.static_camera = res.motion.is_static;
     if (res.motion.is_static)

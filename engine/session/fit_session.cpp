@@ -194,9 +194,10 @@ ExportPass parse_export_pass(const std::string& n) {
     if (n == "depth") return ExportPass::Depth;
     if (n == "confidence") return ExportPass::Confidence;
     if (n == "flow") return ExportPass::Flow;
+    if (n == "parallax") return ExportPass::Parallax;
     throw Error("unknown pass '" + n +
-                "' (use sharp, reblur, atlas, alpha, coc, uv, refocus, depth, confidence, flow or "
-                "all)");
+                "' (use sharp, reblur, atlas, alpha, coc, uv, refocus, depth, confidence, flow, "
+                "parallax or all)");
 }
 
 bool is_data_pass(ExportPass p) {
@@ -226,6 +227,8 @@ const char* export_pass_name(ExportPass p) {
             return "flow";
         case ExportPass::Confidence:
             return "confidence";
+        case ExportPass::Parallax:
+            return "parallax";
     }
     return "?";
 }
@@ -429,6 +432,26 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
         write(engine.model().atlas_bg(), d_bg, "bg");
         write(engine.model().atlas_fg(), d_fg, "fg");
         return files;
+    }
+    if (pass == ExportPass::Parallax) {
+        // γ over the background atlas (fast_model.h, plane + parallax): one image for the clip.
+        if (format != "exr" && format != "exr32")
+            throw Error(
+                "--what parallax holds the background's parallax (px at the frame of "
+                "largest camera motion, in atlas space): use --format exr");
+        std::lock_guard<std::mutex> lock(engine.model_mutex());
+        const torch::Tensor g = engine.has_atlas() ? engine.model().parallax_bg() : torch::Tensor();
+        if (!g.defined())
+            throw Error(
+                "the fit has no parallax field: a static camera, a preset other than fast, "
+                "or fast.parallax off when it was fitted");
+        std::error_code ec;
+        fs::create_directories(out, ec);
+        const std::string path = (fs::path(out) / "parallax_bg.exr").string();
+        const Image img = tensor_to_image(g);
+        refuse_nonfinite(img, "parallax_bg", -1);
+        write_image_file(path, img, PixelFormat::ExrFloat);
+        return {path};
     }
     const ClipFormat cf = pass_clip_format(pass, format);
     const FitData& d = engine.data();

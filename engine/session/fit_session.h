@@ -30,7 +30,19 @@ void write_fit_settings(Project& project, const FitSettings& s, const FitSnapsho
 std::unique_ptr<FitEngine> open_fitted(const Project& project, PrepareLog& log);
 
 // What `refocus export --what` can write.
-enum class ExportPass { Sharp, Reblur, Atlas, Alpha, Coc, Uv, Refocus, Depth, Confidence, Flow };
+enum class ExportPass {
+    Sharp,
+    Reblur,
+    Atlas,
+    Alpha,
+    Coc,
+    Uv,
+    Refocus,
+    Depth,
+    Confidence,
+    Flow,
+    Parallax
+};
 // sharp|reblur|atlas|alpha|coc|uv|refocus|depth|confidence|flow
 ExportPass parse_export_pass(const std::string& name);
 // Passes of values rather than pictures (coc px, atlas coordinates, inverse depth, flow px):

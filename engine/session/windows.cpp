@@ -109,7 +109,7 @@ std::vector<std::string> export_windowed(const WindowedShot& shot, ExportPass pa
                                          const std::string& format, const std::string& out,
                                          const std::function<bool(int, int)>& progress) {
     const std::string name = export_pass_name(pass);
-    if (pass == ExportPass::Atlas || pass == ExportPass::Uv)
+    if (pass == ExportPass::Atlas || pass == ExportPass::Uv || pass == ExportPass::Parallax)
         throw Error(file_error(shot.dir.string(),
                                "--what " + name +
                                    " is each window's own (its atlas): export it from a window's "
