@@ -122,7 +122,8 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
             notes.push_back(line);
         }
         clock.next("set-up: fuse the subject's atlas", "fusing the subject's atlas");
-        init_levels(m_fg, fuse(m_fg, fg_weight));
+        init_levels(m_fg, m_opts.restore_only ? torch::zeros({3, m_fg.height, m_fg.width})
+                                              : fuse(m_fg, fg_weight));
         clock.next("set-up: the matte", "fusing the matte");
         // Alpha (paper eq. 1): a matte shared by the frames, in the foreground atlas (half its
         // resolution), plus a per-frame residual (quarter resolution) for what moves on the
@@ -141,10 +142,13 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         // surface's radius there is the wall's, sharp when focus is on the wall, and such a
         // frame's "no head" would be trusted most.
         const auto subject_r = d.layer_radius(true).unsqueeze(1);
-        auto fused_mask = fuse_frames(
-            torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
-            m_alpha_h, m_alpha_w, [&](int64_t t) { return d.mask[t]; },
-            [&](int64_t t) { return (subject_r[t] + 0.5).pow(-4.0); });
+        auto fused_mask =
+            m_opts.restore_only
+                ? torch::full({1, m_alpha_h, m_alpha_w}, 0.5f)
+                : fuse_frames(
+                      torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
+                      m_alpha_h, m_alpha_w, [&](int64_t t) { return d.mask[t]; },
+                      [&](int64_t t) { return (subject_r[t] + 0.5).pow(-4.0); });
         m_alpha_atlas = torch::logit(fused_mask.unsqueeze(0).clamp(0.01, 0.99));
         m_alpha_logit = torch::zeros({T, 1, (H + 3) / 4, (W + 3) / 4});
         // The masks are trusted as much as the subject is sharp there (1 at r = 0, 0.2 at 4 px,
@@ -184,7 +188,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                       (long long)fw.points, fw.before_px, fw.after_px);
         notes.push_back(line);
     }
-    if (m_bg.learn_warp && m_opts.parallax && T > 1) {
+    if (m_bg.learn_warp && m_opts.parallax && T > 1 && !m_opts.restore_only) {
         // The flow on and near the subject is the subject's, not the wall's behind it: its mask
         // grown by 1/40 of the frame leaves it out.
         const int64_t g = std::max<int64_t>(1, std::min(H, W) / 40);
@@ -196,7 +200,8 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         if (!line.empty()) notes.push_back(line);
     }
     clock.next("set-up: fuse the background atlas", "fusing the background atlas");
-    init_levels(m_bg, fuse(m_bg, bg_weight, {}, true));
+    init_levels(m_bg, m_opts.restore_only ? torch::zeros({3, m_bg.height, m_bg.width})
+                                          : fuse(m_bg, bg_weight, {}, true));
     debug_memory("fast model: background fused");
     clock.next("set-up: deblurring path", m_opts.deblur_path ? "the deblurring path" : "");
     if (m_opts.deblur_path) {

@@ -80,6 +80,10 @@ struct FastModelOptions {
     // Frames per step when a layer has the path (FitOptions::batch left to the model): its
     // texels take the data's gradient through Q's gain, and two frames' worth of it is noisy.
     int deblur_batch = 4;
+    // The set-up of a model whose checkpoint is loaded next (export, the studio, `atlas`): the
+    // atlases, the matte and the parallax field are not fused or fitted from the frames, since
+    // the checkpoint replaces them. Training from such a set-up starts from empty atlases.
+    bool restore_only = false;
     int pad = 0;  // px of scene the atlases hold beyond each frame edge (the
                   // engine passes the largest blur support; FitModel::max_pad)
 };

@@ -135,6 +135,9 @@ const std::vector<Field<FastModelOptions>>& fast_fields() {
          "ECC alignment rounds at initialisation (0: off)"},
         {"fast.align_width", &O::align_width, 0, 1e5,
          "... on frames shrunk to at most this wide (px; 0: full size)"},
+        {"fast.restore_only", &O::restore_only, 0, 1,
+         "the set-up fuses no atlas: a checkpoint replaces them (export and the studio set it on "
+         "a fitted project)"},
         {"fast.static_align", &O::static_align, 0, 1,
          "a static camera's frames are aligned for hand shake"},
         {"fast.deblur_path", &O::deblur_path, 0, 1,

@@ -121,8 +121,11 @@ std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
     if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.iters = 1;
     // ECC alignment is most of the set-up before a fitted project's first frame, and the
     // checkpoint's geometry replaces what it finds (these settings are not stored).
-    if (s.fit.preset == "fast" && checkpoint_holds_geometry(fit_dir(p)))
+    // Fusing the atlases is the rest of it, and the checkpoint replaces them too.
+    if (s.fit.preset == "fast" && checkpoint_holds_geometry(fit_dir(p))) {
         s.fit.settings.set("fast.align_rounds", "0");
+        s.fit.settings.set("fast.restore_only", "1");
+    }
     auto engine = std::make_unique<FitEngine>(data, s.fit);
     engine->load_checkpoint(fit_dir(p));
     return engine;
