@@ -167,8 +167,8 @@ PillarScore score_pillar(const test::TinyClip& c, const std::vector<Image>& shar
 }  // namespace
 
 TEST_CASE("plane + parallax: the plate beats the wall's input and γ sets the pillar before it") {
-    const test::TinyClip c = fit_plate("plane_parallax_pillar", "pillar", true, 200);
-    const test::TinyClip off = fit_plate("plane_parallax_pillar_off", "pillar", false, 200);
+    const test::TinyClip c = fit_plate("plane_parallax_pillar", "pillar", true, 120);
+    const test::TinyClip off = fit_plate("plane_parallax_pillar_off", "pillar", false, 120);
     const PillarScore on_s = score_pillar(c, test::export_sharp(c, "sharp"));
     const PillarScore off_s = score_pillar(off, test::export_sharp(off, "sharp"));
     auto r = test::cli("export '" + c.project.string() + "' --what parallax --out '" +

@@ -188,15 +188,20 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                       (long long)fw.points, fw.before_px, fw.after_px);
         notes.push_back(line);
     }
-    if (m_bg.learn_warp && m_opts.parallax && T > 1 && !m_opts.restore_only) {
+    if (m_bg.learn_warp && m_opts.parallax && T > 1) {
         // The flow on and near the subject is the subject's, not the wall's behind it: its mask
-        // grown by 1/40 of the frame leaves it out.
+        // grown by 1/40 of the frame leaves it out. Restoring, the field is made (the checkpoint
+        // names its tensors through state()) but not fitted to the flow.
         const int64_t g = std::max<int64_t>(1, std::min(H, W) / 40);
-        const auto line = make_parallax(m_bg, [&](int64_t t) {
-            if (!m_two_layers) return bg_region[t];
-            return 1.0 - F::max_pool2d(d.mask[t].unsqueeze(0),
-                                       F::MaxPool2dFuncOptions(2 * g + 1).stride(1).padding(g))[0];
-        });
+        std::function<torch::Tensor(int64_t)> region;
+        if (!m_opts.restore_only)
+            region = [&](int64_t t) {
+                if (!m_two_layers) return bg_region[t];
+                return 1.0 -
+                       F::max_pool2d(d.mask[t].unsqueeze(0),
+                                     F::MaxPool2dFuncOptions(2 * g + 1).stride(1).padding(g))[0];
+            };
+        const auto line = make_parallax(m_bg, region);
         if (!line.empty()) notes.push_back(line);
     }
     clock.next("set-up: fuse the background atlas", "fusing the background atlas");
