@@ -33,7 +33,9 @@ const PassInfo kPasses[] = {
     {"reblur", "reblur", "The model's re-blurred frames, to compare with the input"},
     {"confidence", "confidence",
      "1 where the sharp plate comes from the fit, 0 where it falls back to the shot"},
-    {"optical flow", "flow", "Forward flow to the next frame from the fitted mappings, px (EXR)"}};
+    {"optical flow", "flow", "Forward flow to the next frame from the fitted mappings, px (EXR)"},
+    {"parallax", "parallax",
+     "The background's parallax over its atlas (EXR), where it was fitted with fast.parallax"}};
 constexpr int kPassCount = int(std::size(kPasses));
 static_assert(kPassCount == int(sizeof(ExportPanelState::pass) / sizeof(bool)),
               "a checkbox a pass");
@@ -56,7 +58,7 @@ std::string run_export(FitEngine& engine, const ExportJob& job, FitWorker& w) {
     for (size_t i = 0; i < job.passes.size(); ++i) {
         const ExportPass pass = parse_export_pass(job.passes[i]);
         std::string fmt = job.format;
-        if (is_data_pass(pass)) fmt = "exr";
+        if (is_data_pass(pass) || pass == ExportPass::Parallax) fmt = "exr";
         if (pass == ExportPass::Atlas && fmt == "mp4") fmt = "png";
         std::string target = job.out;
         if (fmt == "mp4")

@@ -12,7 +12,7 @@ namespace refocus {
 struct StudioContext;
 
 struct ExportPanelState {
-    bool pass[10] = {true,  true,  false, false, false,
+    bool pass[11] = {true,  true,  false, false, false, false,
                      false, false, false, false, false};  // in the checkboxes' order
     int format = 0;
     int first = 0, last = -1;  // -1: the clip's last frame
