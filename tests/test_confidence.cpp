@@ -120,6 +120,50 @@ TEST_CASE("a sharper view: the model replaces a pixel only where another frame s
     CHECK(sharper_view(blur_reach(radius_of(0)), best, 0).min().item<double>() == 1.0);  // off
 }
 
+TEST_CASE(
+    "where focus moved over a point, a small sharper view counts; where it never moved, not") {
+    // Left half: a rack, focus passes over it (0.5 px in frame 3, 5 px elsewhere). Right half:
+    // focus never moves, and the estimate wobbles by 1 px between frames (4 px, 3 px in frame 3).
+    const int T = 6, H = 12, W = 40;
+    auto radius_of = [&](int s) {
+        auto r = torch::full({H, W}, 4.0);
+        r.narrow(1, 0, W / 2).fill_(5.0);
+        if (s == 3) {
+            r.narrow(1, 0, W / 2).fill_(0.5);
+            r.narrow(1, W / 2, W / 2).fill_(3.0);
+        }
+        if (s == 4) r.narrow(1, 0, W / 2).fill_(4.0);  // the rack on its way: 1 px sharper
+        return r;
+    };
+    auto still = torch::eye(3, torch::kFloat64).repeat({T, 1, 1});
+    for (bool static_camera : {true, false}) {
+        auto seen = seen_radius(0, T, 32, still, static_camera, 30.0, radius_of);
+        CHECK(px_at(seen.least, 6, 2) == doctest::Approx(0.5));
+        CHECK(px_at(seen.most, 6, 2) == doctest::Approx(5.0));
+        CHECK(px_at(seen.most - seen.least, 6, 37) == doctest::Approx(1.0));
+        CHECK(px_at(seen.least, 6, 37) ==
+              px_at(sharpest_seen(0, T, 32, still, static_camera, 30.0, radius_of), 6, 37));
+    }
+    auto seen = seen_radius(0, T, 32, still, true, 30.0, radius_of);
+    const auto range = seen.most - seen.least;
+    // Frame 4 sees the rack 1 px sharper than frame 0 did, and the static half 0 px; frame 0
+    // sees the static half 1 px blurrier than frame 3: under 2 px, not a sharper view.
+    auto g4 = sharper_view(blur_reach(radius_of(4)), seen.least, range, 2.0, 0.5, 2.5);
+    CHECK(px_at(g4, 6, 2) == doctest::Approx(1.0));  // 3.5 px sharper in frame 3: the model
+    auto g0 = sharper_view(blur_reach(radius_of(0)), seen.least, range, 2.0, 0.5, 2.5);
+    CHECK(px_at(g0, 6, 37) == doctest::Approx(0.0));  // never moved: 1 px is the estimate's noise
+    // Frame 0 of a clip whose rack reaches only 1.2 px sharper than it: kept at 2 px, taken
+    // where focus moved.
+    auto near = seen.least.clone();
+    near.narrow(3, 0, W / 2).fill_(3.8);
+    CHECK(px_at(sharper_view(blur_reach(radius_of(0)), near, range, 2.0, 0.5, 2.5), 6, 2) ==
+          doctest::Approx(1.0));
+    CHECK(px_at(sharper_view(blur_reach(radius_of(0)), near, torch::Tensor(), 2.0, 0.5, 2.5), 6,
+                2) == doctest::Approx(0.0));  // no range: γ as before
+    CHECK(px_at(sharper_view(blur_reach(radius_of(0)), near, range, 2.0, 0.5, 0), 6, 2) ==
+          doctest::Approx(0.0));  // off
+}
+
 TEST_CASE("the unexplained share: a region far above the frame's typical residual") {
     const int H = 48, W = 48;
     auto e = torch::full({1, 1, H, W}, 0.01);
@@ -131,6 +175,32 @@ TEST_CASE("the unexplained share: a region far above the frame's typical residua
     CHECK(px_at(u, 4, 4) == doctest::Approx(0.0));
     CHECK(px_at(u, 24, 6) == doctest::Approx(0.0));
     CHECK_FALSE(unexplained_share(torch::full({1, 1, 4, 4}, -1.0), 4, 0.04).defined());
+}
+
+TEST_CASE("the evidence rule: a residual the noise and the model's change explain is kept") {
+    // σ = 4 levels: a right model leaves |e| ≈ 0.8·4/255 = 0.0125 everywhere. Left third: the
+    // model restores little (D = 0.005) and misses by 0.05: wrong. Middle: it restores much
+    // (D = 0.12) and misses by 0.05: within half of its change. Right: noise alone.
+    const int H = 40, W = 120;
+    auto e = torch::full({1, 1, H, W}, 0.0125);
+    auto d = torch::full({1, 1, H, W}, 0.005);
+    e.narrow(3, 0, 40).fill_(0.05);
+    e.narrow(3, 40, 40).fill_(0.05);
+    d.narrow(3, 40, 40).fill_(0.12);
+    auto u = unexplained_share_evidence(e, d, 4.0, 0.5, 0.004);
+    CHECK(px_at(u, 20, 10) == doctest::Approx(1.0));   // misses by more than it restores
+    CHECK(px_at(u, 20, 60) == doctest::Approx(0.0));   // restores more than twice its miss
+    CHECK(px_at(u, 20, 110) == doctest::Approx(0.0));  // the noise
+    // The same noise read as 0 levels: the noise alone now passes the floor (0.004 + 0.0025).
+    CHECK(px_at(unexplained_share_evidence(e, d, 0.0, 0.5, 0.004), 20, 110) > 0.9);
+    // The median rule calls half of a frame unexplained by rank whatever the residual is.
+    auto ramp = torch::linspace(0.004, 0.012, W).view({1, 1, 1, W}).expand({1, 1, H, W});
+    CHECK(px_at(unexplained_share(ramp.contiguous(), 1.0, 0.001), 20, 110) > 0.1);
+    CHECK(px_at(unexplained_share_evidence(ramp.contiguous(), d, 4.0, 0.5, 0.004), 20, 110) ==
+          doctest::Approx(0.0));
+    CHECK_FALSE(unexplained_share_evidence(torch::full({1, 1, 4, 4}, -1.0),
+                                           torch::zeros({1, 1, 4, 4}), 4, 0.5, 0.004)
+                    .defined());
 }
 
 TEST_CASE("the low-frequency lock: a colour shift is undone, fine detail is kept") {
@@ -205,8 +275,8 @@ TEST_CASE("a region whose radius is wrong falls back to the shot; the rest keeps
                                        << " dB, confidence " << k_right);
     CHECK(out_wrong > in_wrong - 0.5);  // never (much) worse than the shot
     CHECK(out_right > in_right + 1.0);  // where the model is right, it still fixes the shot
-    // And the confidence pass says where. The fallback starts at the frame's median residual,
-    // so even the right half is partly the shot; the wrong half is half as confident.
+    // And the confidence pass says where: the wrong half's residual passes what its noise and
+    // the model's change there explain more often than the right half's.
     CHECK(k_wrong < k_right - 0.1);
 
     // The default sharper-view rule (2 px) acts on the output only: the same fit exported with

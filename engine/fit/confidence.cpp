@@ -40,6 +40,18 @@ torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min
     return feather(f, 4);
 }
 
+torch::Tensor unexplained_share_evidence(const torch::Tensor& resid, const torch::Tensor& change,
+                                         double noise_levels, double change_share, double floor) {
+    if (!resid.defined() || !change.defined() || (resid < 0).any().item<bool>()) return {};
+    torch::NoGradGuard g;
+    auto lo =
+        (0.8 * std::max(noise_levels, 0.0) / 255.0 + floor + change_share * change.view_as(resid))
+            .clamp_min(1e-4);
+    auto f = smoothstep01((resid - lo) / lo);
+    f = max_filter(f, 4);  // grown and feathered by 4 px, as unexplained_share
+    return feather(f, 4);
+}
+
 torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t,
                              bool outside_zero) {
     torch::NoGradGuard g;
@@ -85,11 +97,20 @@ torch::Tensor temporal_unexplained(int t, int frames, int window, const torch::T
 torch::Tensor sharpest_seen(int t, int frames, int max_frames, const torch::Tensor& to_ref,
                             bool static_camera, double unseen_px,
                             const std::function<torch::Tensor(int)>& radius_of) {
+    return seen_radius(t, frames, max_frames, to_ref, static_camera, unseen_px, radius_of,
+                       /*with_most=*/false)
+        .least;
+}
+
+SeenRadius seen_radius(int t, int frames, int max_frames, const torch::Tensor& to_ref,
+                       bool static_camera, double unseen_px,
+                       const std::function<torch::Tensor(int)>& radius_of, bool with_most) {
     torch::NoGradGuard g;
     auto as_map = [](const torch::Tensor& r) {
         return r.view({1, 1, r.size(-2), r.size(-1)}).to(torch::kFloat32);
     };
-    auto best = as_map(radius_of(t));
+    auto least = as_map(radius_of(t));
+    torch::Tensor most = with_most ? least : torch::Tensor();
     const bool warp = !static_camera && to_ref.defined();
     // Every frame when they are few, else an even spread (the radius changes smoothly in time,
     // so a spread misses a focus hit by at most the change over its stride).
@@ -98,13 +119,22 @@ torch::Tensor sharpest_seen(int t, int frames, int max_frames, const torch::Tens
     for (int s = t % stride; s < frames; s += stride) {
         if (s == t) continue;
         auto r = as_map(radius_of(s));
-        // Drawn as (unseen − r) with zeros outside frame s: a pixel it did not see reads unseen.
-        if (warp)
-            r = unseen_px - warp_frame_map(unseen_px - r.clamp_max(unseen_px), to_ref, s, t,
-                                           /*outside_zero=*/true);
-        best = torch::minimum(best, r);
+        if (warp) {
+            // Drawn as (unseen − r) with zeros outside frame s: a pixel it did not see reads
+            // unseen, which lowers no least; for the most, only pixels frame s saw count.
+            auto far = warp_frame_map(unseen_px - r.clamp_max(unseen_px), to_ref, s, t,
+                                      /*outside_zero=*/true);
+            least = torch::minimum(least, unseen_px - far);
+            if (!with_most) continue;
+            auto seen = warp_frame_map(torch::ones_like(r), to_ref, s, t, /*outside_zero=*/true);
+            most = torch::maximum(
+                most, torch::where(seen > 0.999, unseen_px * seen - far, torch::zeros_like(r)));
+        } else {
+            least = torch::minimum(least, r);
+            if (with_most) most = torch::maximum(most, r);
+        }
     }
-    return best;
+    return {least, most};
 }
 
 torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px) {
@@ -134,6 +164,18 @@ torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& shar
     torch::NoGradGuard g;
     if (!(gain_px > 0)) return torch::ones_like(reach);
     return feather(smoothstep01((reach - sharpest.view_as(reach) - gain_px) / gain_px), 4);
+}
+
+torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& sharpest,
+                           const torch::Tensor& range, double gain_px, double moved_gain_px,
+                           double moved_px) {
+    torch::NoGradGuard g;
+    if (!(moved_px > 0) || !range.defined()) return sharper_view(reach, sharpest, gain_px);
+    if (!(gain_px > 0)) return torch::ones_like(reach);
+    auto moved = smoothstep01((range.view_as(reach) - 0.6 * moved_px) / (0.4 * moved_px));
+    // At least a hundredth of a px: a threshold of 0 is a step at the first sharper view.
+    auto gain = (gain_px + (moved_gain_px - gain_px) * moved).clamp_min(0.01);
+    return feather(smoothstep01((reach - sharpest.view_as(reach) - gain) / gain), 4);
 }
 
 torch::Tensor gaussian_blur(const torch::Tensor& x, double sigma) {

@@ -22,6 +22,15 @@ torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min
 torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t,
                              bool outside_zero = false);
 
+// κ's evidence rule: the unexplained share where the running residual `resid` ([1,1,H,W] sRGB,
+// as unexplained_share reads it) passes what a right model leaves there, the noise plus a share
+// of what the model changes over its own reblur: lo = 0.8·σ/255 + change_share·change + floor
+// (`change` = |C − Î|, the same units; 0.8σ is the mean |noise| of a channel), smoothstep from
+// lo to 2·lo, grown and feathered by 4 px. A model that restores much may miss the input by
+// more than one that restores little; a residual past both is a wrong model, not noise.
+torch::Tensor unexplained_share_evidence(const torch::Tensor& resid, const torch::Tensor& change,
+                                         double noise_levels, double change_share, double floor);
+
 // The unexplained share of frame t made smooth in time: the larger of its own and the mean of
 // frames t ± window drawn in frame t (through the homographies): a frame keeps its own fallback,
 // and a region that falls back around it fades in and out. `u_of(s)` gives frame s's share
@@ -37,6 +46,17 @@ torch::Tensor temporal_unexplained(int t, int frames, int window, const torch::T
 torch::Tensor sharpest_seen(int t, int frames, int max_frames, const torch::Tensor& to_ref,
                             bool static_camera, double unseen_px,
                             const std::function<torch::Tensor(int)>& radius_of);
+
+// The least and the largest radius with which the clip saw each pixel of frame t ([1,1,H,W] px
+// each), over the same frames as sharpest_seen. A frame that did not see the pixel counts for
+// neither. `most − least` is how far focus moved over the point; `most` is left undefined
+// unless with_most.
+struct SeenRadius {
+    torch::Tensor least, most;
+};
+SeenRadius seen_radius(int t, int frames, int max_frames, const torch::Tensor& to_ref,
+                       bool static_camera, double unseen_px,
+                       const std::function<torch::Tensor(int)>& radius_of, bool with_most = true);
 
 // τ: how far the model is trusted to restore a pixel that the sharpest frame saw blurred by
 // `sharpest` px: 1 up to trust_px, 0 from twice that (smoothstep), feathered by 4 px. Detail
@@ -59,6 +79,16 @@ torch::Tensor blur_need(const torch::Tensor& reach, double focus_px);
 // is none, what it adds is deconvolution's. reach and sharpest [1,1,H,W] px.
 torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& sharpest,
                            double gain_px);
+
+// γ with a threshold that depends on how far focus moved over the point (`range`, most − least
+// of seen_radius): gain_px where it never moved by more than 0.6·moved_px, moved_gain_px from
+// moved_px on (smoothstep between). Where focus passed over a point the clip holds a measured
+// sharp view of it and its radius was read against that view, so a small sharper view is real;
+// where focus never moved, a radius that differs by a few px between frames is the estimate's
+// noise.
+torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& sharpest,
+                           const torch::Tensor& range, double gain_px, double moved_gain_px,
+                           double moved_px);
 
 // Separable Gaussian of standard deviation sigma px (support ±3σ, edges replicated), [N,C,H,W].
 torch::Tensor gaussian_blur(const torch::Tensor& x, double sigma);

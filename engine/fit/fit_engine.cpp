@@ -179,7 +179,7 @@ torch::Tensor map_window(const torch::Tensor& maps, int64_t t, int64_t y0, int64
 
 }  // namespace
 
-torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& frames) {
+torch::Tensor FitEngine::reblur(const Layers& L, const std::vector<int64_t>& frames) const {
     // Layers rendered with a margin (render_padded) are blurred with the radius maps padded
     // alike and cropped back to the frame.
     const int64_t pad = (L.sharp.size(3) - m_data->width) / 2;
@@ -503,9 +503,14 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
         t, m_data->frames, m_opts.fallback_frames, m_data->to_ref, m_data->static_camera,
         [&](int s) {
             auto& u = m_unexplained[s];
-            if (!u.defined())  // an unmeasured frame stays undefined and is asked again
-                u = unexplained_share(m_resid[s].unsqueeze(0), m_opts.fallback_k,
-                                      m_opts.fallback_min);
+            if (u.defined()) return u;  // an unmeasured frame stays undefined and is asked again
+            auto resid = m_resid[s].unsqueeze(0);
+            if (!(m_opts.fallback_change > 0))
+                u = unexplained_share(resid, m_opts.fallback_k, m_opts.fallback_min);
+            else if (!(resid < 0).any().item<bool>())
+                u = unexplained_share_evidence(resid, model_change(s),
+                                               std::max(m_data->noise_levels, 0.0),
+                                               m_opts.fallback_change, m_opts.fallback_floor);
             return u;
         });
     if (!f.defined() || !(f > 1e-3).any().item<bool>()) return {};
@@ -515,19 +520,73 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
 torch::Tensor FitEngine::sharpest_seen_map(int t) const {
     if (m_model->steps_itself() || t < 0 || t >= m_data->frames) return {};
     std::lock_guard<std::mutex> lock(m_unexplained_mutex);
-    if (m_seen.empty()) m_seen.assign(m_data->frames, torch::Tensor());
+    if (m_seen.empty()) {
+        m_seen.assign(m_data->frames, torch::Tensor());
+        m_seen_range.assign(m_data->frames, torch::Tensor());
+    }
     // A static camera sees each pixel at the same place in every frame: one map, over all of
     // them, serves every frame.
     const bool still = m_data->static_camera;
-    auto& best = m_seen[still ? 0 : t];
+    const int i = still ? 0 : t;
+    auto& best = m_seen[i];
     if (!best.defined()) {
         // Where a frame did not see the pixel it reads past any trust: it lowers no minimum.
         const double unseen = 4.0 * std::max(m_opts.trust_seen_px, 2.0) + 1.0;
-        best =
-            sharpest_seen(still ? 0 : t, m_data->frames, still ? m_data->frames : 32,
-                          m_data->to_ref, still, unseen, [&](int s) { return m_data->radius[s]; });
+        auto seen = [&](const torch::Tensor& maps, bool most) {
+            return seen_radius(
+                i, m_data->frames, still ? m_data->frames : 32, m_data->to_ref, still, unseen,
+                [&](int s) { return maps[s]; }, most);
+        };
+        const bool range = m_opts.focus_moved_px > 0;
+        // With two layers each layer's range is its own radius's (split_radius_by_layer): a
+        // subject crossing the wall changes the visible surface's radius, not the focus on it.
+        const bool layered = range && m_data->radius_fg.defined() && m_data->radius_bg.defined();
+        auto visible = seen(m_data->radius, range && !layered);
+        best = visible.least;
+        if (layered) {
+            auto fg = seen(m_data->radius_fg, true), bg = seen(m_data->radius_bg, true);
+            m_seen_range[i] = torch::stack({fg.most - fg.least, bg.most - bg.least});
+        } else if (range) {
+            m_seen_range[i] = visible.most - visible.least;
+        }
     }
     return best;
+}
+
+torch::Tensor FitEngine::model_change(int t) const {
+    // Under m_unexplained_mutex (fallback_weight's). A viewer asks for a frame at every step of
+    // a fit, and each asks for its neighbours': a recent map spares their renders.
+    constexpr int64_t kChangeSteps = 50;
+    for (const auto& c : m_change)
+        if (c.frame == t && std::abs(c.step - m_step) <= kChangeSteps) return c.map;
+    torch::NoGradGuard g;
+    Layers L;
+    {
+        std::lock_guard<std::mutex> lock(m_model_mutex);
+        L = m_model->render({t});
+    }
+    auto d = (srgb_encode(L.sharp) - srgb_encode(reblur(L, {t}))).abs().mean(1, true);
+    d = F::avg_pool2d(F::pad(d, F::PadFuncOptions({2, 2, 2, 2}).mode(torch::kReplicate)),
+                      F::AvgPool2dFuncOptions(5).stride(1));
+    // Keeps the frames of one fallback window and the next frame's (an export goes in order).
+    const size_t keep = size_t(2 * std::max(m_opts.fallback_frames, 0) + 2);
+    while (m_change.size() >= keep) m_change.pop_front();
+    m_change.push_back({t, m_step, d});
+    return d;
+}
+
+torch::Tensor FitEngine::focus_range_map(int t) const {
+    if (!(m_opts.focus_moved_px > 0) || !sharpest_seen_map(t).defined()) return {};
+    torch::Tensor r;
+    {
+        std::lock_guard<std::mutex> lock(m_unexplained_mutex);
+        r = m_seen_range[m_data->static_camera ? 0 : t];
+    }
+    if (r.dim() == 4) return r;  // one layer: the visible surface's
+    // Two layers: each layer's range where it is seen, by frame t's mask.
+    torch::NoGradGuard g;
+    auto a = m_data->mask[t].view({1, 1, m_data->height, m_data->width}).to(torch::kFloat32);
+    return a * r[0] + (1.0 - a) * r[1];
 }
 
 torch::Tensor FitEngine::seen_trust_map(int t) const {
@@ -552,7 +611,8 @@ torch::Tensor FitEngine::model_weight(int t, torch::Tensor* gamma) const {
         const auto reach = blur_reach(m_data->radius[t]);  // ν and γ share the dilation
         if (m_opts.keep_focus_px > 0) w = w * blur_need(reach, m_opts.keep_focus_px);
         if (best.defined()) {
-            auto g = sharper_view(reach, best, m_opts.sharper_view_px);
+            auto g = sharper_view(reach, best, focus_range_map(t), m_opts.sharper_view_px,
+                                  m_opts.sharper_view_moved_px, m_opts.focus_moved_px);
             w = w * g;
             if (gamma) *gamma = g;
         }

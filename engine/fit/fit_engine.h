@@ -49,6 +49,12 @@ struct FitOptions {
     double fallback_k = 1.0;
     double fallback_min = 0.01;
     int fallback_frames = 2;  // smooth in time: grown over ±n frames, then averaged over ±n
+    // The evidence rule (confidence.h, unexplained_share_evidence) in place of the median's:
+    // unexplained where the residual passes 0.8·σ (the clip's measured noise) plus this share of
+    // what the model changes over its own reblur, plus `fallback_floor` (sRGB). 0: the median
+    // rule (fallback_k, fallback_min).
+    double fallback_change = 0.5;
+    double fallback_floor = 0.004;
     // Nothing to fix: where no blur of at least this radius (px) reaches a pixel, the output is
     // the shot (0: off).
     double keep_focus_px = 0.5;
@@ -65,6 +71,13 @@ struct FitOptions {
     // that: where frame t is its own sharpest view, the atlas has no detail the shot lacks and
     // only deconvolution could add any (0: off; the dev half of the corpus chose 2 px).
     double sharper_view_px = 2.0;
+    // Where focus moved over a point by at least `focus_moved_px` (the largest radius any frame
+    // saw it at less the least, each layer its own radius; confidence.h, seen_radius), γ's
+    // threshold is `sharper_view_moved_px` instead: the point was seen sharp and its radius
+    // read against that view, so a small sharper view is real, not the estimate's noise (0:
+    // off; chosen on the synth, real-texture and rendered dev clips, docs/benchmarks.md).
+    double focus_moved_px = 4.0;
+    double sharper_view_moved_px = 0.5;
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;
@@ -141,7 +154,8 @@ class FitEngine {
 
     // Inference (no gradients). Frame t's layers, its reblur, and the atlases.
     Layers render_frame(int t);
-    torch::Tensor reblur(const Layers& layers, const std::vector<int64_t>& frames);  // [B,3,H,W]
+    torch::Tensor reblur(const Layers& layers,
+                         const std::vector<int64_t>& frames) const;  // [B,3,H,W]
     // Never worse than the shot (fit/confidence.h; docs/method.md, Confidence and fallback).
     // fallback_weight: where frame t's reblur residual stays far above what the model explains
     // elsewhere (a subject the masks missed, ghosted over the wall; a region no mapping of the
@@ -157,6 +171,12 @@ class FitEngine {
     torch::Tensor seen_trust_map(int t) const;
     // The least radius any frame saw frame t's pixels at (confidence.h, sharpest_seen), cached.
     torch::Tensor sharpest_seen_map(int t) const;
+    // How far focus moved over frame t's pixels: the largest radius any frame saw them at less
+    // the least (confidence.h, seen_radius), cached; undefined unless fit.focus_moved_px is on.
+    torch::Tensor focus_range_map(int t) const;
+    // What the model changes over its own reblur in frame t: |C − Î| in sRGB, the mean over the
+    // channels, over 5×5 px (as the running residual is read). [1,1,H,W]; renders the frame.
+    torch::Tensor model_change(int t) const;
     // The model's share of the output: confidence(t) times the need (0 where no blur reaches
     // the pixel, fit.keep_focus_px) and γ_t (confidence.h, sharper_view: 1 where another frame
     // saw the pixel sharper). [1,1,H,W], undefined when it is 1 everywhere. `gamma`, when given,
@@ -215,7 +235,16 @@ class FitEngine {
     // of a frame reads its neighbours', and the residual only changes with a step.
     mutable std::vector<torch::Tensor> m_unexplained;
     mutable int64_t m_unexplained_step = -1;
+    // model_change's last frames (the window the fallback reads around the frame asked for):
+    // the change moves slowly, so a map up to kChangeSteps steps old serves a fit in progress.
+    struct ChangeMap {
+        int frame;
+        int64_t step;
+        torch::Tensor map;
+    };
+    mutable std::deque<ChangeMap> m_change;
     mutable std::vector<torch::Tensor> m_seen;  // sharpest_seen_map's cache, under the mutex below
+    mutable std::vector<torch::Tensor> m_seen_range;  // focus_range_map's, filled beside it
     mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;  // whether steps take crops (FitOptions::crop_px, and the model
@@ -229,7 +258,7 @@ class FitEngine {
     double m_last_ckpt = 0.0;
     std::atomic<bool> m_stop{false}, m_paused{false};
     mutable std::mutex m_snap_mutex;
-    std::mutex m_model_mutex;
+    mutable std::mutex m_model_mutex;
     FitSnapshot m_snap;
 };
 

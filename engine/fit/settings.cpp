@@ -50,6 +50,12 @@ const std::vector<Field<FitOptions>>& fit_fields() {
         {"fit.fallback_k", &O::fallback_k, 0, 1e6,
          "the input shows through from this many times the frame's median residual"},
         {"fit.fallback_min", &O::fallback_min, 0, 1, "... and from at least this residual (sRGB)"},
+        {"fit.fallback_change", &O::fallback_change, 0, 1e3,
+         "the input shows through where the residual passes 0.8 x the measured noise plus this "
+         "share of what the model changes over its reblur, plus fit.fallback_floor; 0: the "
+         "median rule (fit.fallback_k, fit.fallback_min)"},
+        {"fit.fallback_floor", &O::fallback_floor, 0, 1,
+         "the evidence rule's least residual (sRGB) before the input shows through"},
         {"fit.fallback_frames", &O::fallback_frames, 0, 12,
          "the fallback is smooth in time: grown over +-n frames, then averaged over +-n"},
         {"fit.lock_low_px", &O::lock_low_px, 0, 64,
@@ -60,6 +66,11 @@ const std::vector<Field<FitOptions>>& fit_fields() {
         {"fit.sharper_view_px", &O::sharper_view_px, 0, 64,
          "the model replaces a pixel only where some frame saw it sharper than this frame did, "
          "by more than this (px), fully from twice that (0: off)"},
+        {"fit.focus_moved_px", &O::focus_moved_px, 0, 64,
+         "where focus moved over a point by at least this (px: the largest radius seen less the "
+         "least), the sharper-view threshold is fit.sharper_view_moved_px (0: off)"},
+        {"fit.sharper_view_moved_px", &O::sharper_view_moved_px, 0, 64,
+         "the sharper-view threshold (px) where focus moved over the point"},
         {"fit.keep_focus_px", &O::keep_focus_px, 0, 8,
          "where no blur of at least this radius (px) reaches a pixel, the output is the shot "
          "(0: off)"},
