@@ -166,8 +166,9 @@ TEST_CASE("robust weights: a patch no layer can explain does not leak into the s
         o.iters = 300;
         o.robust_c = c;
         o.fallback_frames = 0;  // frame by frame here (the window has a test of its own)
-        o.fallback_k = 4;       // at the default (2x) frame 0 rightly falls back where the
-        o.fallback_min = 0.04;  // square leaked with robust weights off
+        o.fallback_change = 0;  // the rank rule, at k 4 and 0.04: frame 0 rightly falls back
+        o.fallback_k = 4;       // where the square leaked with robust weights off at lower
+        o.fallback_min = 0.04;  // thresholds, and under the evidence rule
         o.keep_focus_px = 0;    // the clip has no blur: with it on, every frame is the shot
         FitEngine e(make(), o);
         while (!e.done()) e.step();

@@ -565,6 +565,8 @@ torch::Tensor FitEngine::model_change(int t) const {
         std::lock_guard<std::mutex> lock(m_model_mutex);
         L = m_model->render({t});
     }
+    // A damaged model has no change to measure; the export's own check names it.
+    if (!torch::isfinite(L.sharp).all().item<bool>()) return {};
     auto d = (srgb_encode(L.sharp) - srgb_encode(reblur(L, {t}))).abs().mean(1, true);
     d = F::avg_pool2d(F::pad(d, F::PadFuncOptions({2, 2, 2, 2}).mode(torch::kReplicate)),
                       F::AvgPool2dFuncOptions(5).stride(1));

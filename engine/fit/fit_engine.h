@@ -53,7 +53,7 @@ struct FitOptions {
     // unexplained where the residual passes 0.8·σ (the clip's measured noise) plus this share of
     // what the model changes over its own reblur, plus `fallback_floor` (sRGB). 0: the median
     // rule (fallback_k, fallback_min).
-    double fallback_change = 0.5;
+    double fallback_change = 0.35;
     double fallback_floor = 0.004;
     // Nothing to fix: where no blur of at least this radius (px) reaches a pixel, the output is
     // the shot (0: off).
