@@ -27,17 +27,21 @@ torch::Tensor feather(const torch::Tensor& m, int radius) {
         F::AvgPool2dFuncOptions(2 * radius + 1).stride(1));
 }
 
+// The unexplained share from threshold lo (a number or a map): a smoothstep from lo to 2·lo,
+// grown and feathered by 4 px. Not opened: a thin unexplained band (an occlusion edge under
+// parallax, a misregistered edge) is where the atlas is wrong, and the shot is better there
+// (docs/method.md).
+torch::Tensor share_above(const torch::Tensor& resid, const torch::Tensor& lo) {
+    return feather(max_filter(smoothstep01((resid - lo) / lo), 4), 4);
+}
+
 }  // namespace
 
 torch::Tensor unexplained_share(const torch::Tensor& resid, double k, double min) {
     if (!resid.defined() || (resid < 0).any().item<bool>()) return {};
     torch::NoGradGuard g;
     const double lo = std::max(k * resid.median().item<double>(), min);
-    auto f = smoothstep01((resid - lo) / lo);
-    // Not opened: a thin unexplained band (an occlusion edge under parallax, a misregistered
-    // edge) is where the atlas is wrong, and the shot is better there (docs/method.md).
-    f = max_filter(f, 4);  // grown and feathered by 4 px
-    return feather(f, 4);
+    return share_above(resid, torch::full({}, lo, resid.options()));
 }
 
 torch::Tensor unexplained_share_evidence(const torch::Tensor& resid, const torch::Tensor& change,
@@ -47,9 +51,7 @@ torch::Tensor unexplained_share_evidence(const torch::Tensor& resid, const torch
     auto lo =
         (0.8 * std::max(noise_levels, 0.0) / 255.0 + floor + change_share * change.view_as(resid))
             .clamp_min(1e-4);
-    auto f = smoothstep01((resid - lo) / lo);
-    f = max_filter(f, 4);  // grown and feathered by 4 px, as unexplained_share
-    return feather(f, 4);
+    return share_above(resid, lo);
 }
 
 torch::Tensor warp_frame_map(const torch::Tensor& m_s, const torch::Tensor& to_ref, int s, int t,
