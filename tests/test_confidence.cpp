@@ -382,3 +382,24 @@ TEST_CASE("separable max and min filters equal max pooling over the square windo
     // A window wider than the map: every pixel takes the map's extreme.
     CHECK(torch::equal(max_filter(x, 80)[0], x[0].amax({1, 2}, true).expand({1, 37, 53})));
 }
+
+TEST_CASE("the separable box mean equals the square average pool over a replicated border") {
+    // The focal-stack radius filters 29 cost maps a frame: two 1-D passes instead of (2r+1)².
+    namespace F = torch::nn::functional;
+    torch::manual_seed(4);
+    const auto x = torch::rand({3, 2, 29, 41});
+    for (int r : {0, 1, 4, 9}) {
+        CAPTURE(r);
+        const auto ref =
+            r == 0
+                ? x
+                : F::avg_pool2d(F::pad(x, F::PadFuncOptions({r, r, r, r}).mode(torch::kReplicate)),
+                                F::AvgPool2dFuncOptions(2 * r + 1).stride(1));
+        const auto got = box_filter(x, r);
+        REQUIRE(got.sizes() == x.sizes());
+        CHECK((got - ref).abs().max().item<float>() < 1e-5f);  // float sums of 19² terms
+    }
+    // A flat map stays flat; a window past the border only repeats the edge.
+    CHECK(torch::allclose(box_filter(torch::full({1, 1, 5, 7}, 0.25f), 6),
+                          torch::full({1, 1, 5, 7}, 0.25f)));
+}

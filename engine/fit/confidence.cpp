@@ -22,9 +22,7 @@ torch::Tensor smoothstep01(const torch::Tensor& x) {
 
 // A box mean over (2·radius + 1)² px, edges replicated: a map's seam made a ramp.
 torch::Tensor feather(const torch::Tensor& m, int radius) {
-    return F::avg_pool2d(
-        F::pad(m, F::PadFuncOptions({radius, radius, radius, radius}).mode(torch::kReplicate)),
-        F::AvgPool2dFuncOptions(2 * radius + 1).stride(1));
+    return box_filter(m, radius);
 }
 
 // The unexplained share from threshold lo (a number or a map): a smoothstep from lo to 2·lo,

@@ -15,6 +15,7 @@
 #include "radius/stack_coc.h"
 #include "io/tensor_image.h"
 #include "io/image_file.h"
+#include "ops/morphology.h"
 #include "util/debug.h"
 #include "util/timing.h"
 #include "util/error.h"
@@ -311,8 +312,7 @@ torch::Tensor FitEngine::robust_target(const torch::Tensor& rb, const torch::Ten
     // Residual of this step, smoothed over 5x5 px (a single pixel's error is noise), folded into
     // the frame's running residual (the atlases move slowly; one step's error alone flickers).
     auto e = (rb.detach() - target).abs().mean(1, true);
-    e = F::avg_pool2d(F::pad(e, F::PadFuncOptions({2, 2, 2, 2}).mode(torch::kReplicate)),
-                      F::AvgPool2dFuncOptions(5).stride(1));
+    e = box_filter(e, 2);
     std::vector<torch::Tensor> w;
     for (size_t b = 0; b < frames.size(); ++b) {
         // A crop updates its window of the frame's residual (a view into m_resid).
@@ -568,8 +568,7 @@ torch::Tensor FitEngine::model_change(int t) const {
     // A damaged model has no change to measure; the export's own check names it.
     if (!torch::isfinite(L.sharp).all().item<bool>()) return {};
     auto d = (srgb_encode(L.sharp) - srgb_encode(reblur(L, {t}))).abs().mean(1, true);
-    d = F::avg_pool2d(F::pad(d, F::PadFuncOptions({2, 2, 2, 2}).mode(torch::kReplicate)),
-                      F::AvgPool2dFuncOptions(5).stride(1));
+    d = box_filter(d, 2);
     // Keeps the frames of one fallback window and the next frame's (an export goes in order).
     const size_t keep = size_t(2 * std::max(m_opts.fallback_frames, 0) + 2);
     while (m_change.size() >= keep) m_change.pop_front();

@@ -227,6 +227,8 @@ const std::vector<Field<StackCocOptions>>& radius_fields() {
          "the floor's gate reads views this far inside the layer's region (px)"},
         {"radius.spectral", &O::spectral, 0, 1,
          "a layer blurred past what edges measure is read from tile spectra"},
+        {"radius.floor_frames", &O::floor_frames, 1, 1e6,
+         "frames whose edges and tiles the floor reads, spread over the clip"},
     };
     return f;
 }

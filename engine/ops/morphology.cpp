@@ -20,4 +20,13 @@ torch::Tensor min_filter(const torch::Tensor& x, int radius) {
     return -max_filter(-x, radius);
 }
 
+torch::Tensor box_filter(const torch::Tensor& x, int radius) {
+    if (radius <= 0) return x;
+    const int64_t k = 2 * int64_t(radius) + 1;
+    auto padded =
+        F::pad(x, F::PadFuncOptions({radius, radius, radius, radius}).mode(torch::kReplicate));
+    auto rows = F::avg_pool2d(padded, F::AvgPool2dFuncOptions({1, k}).stride(1));
+    return F::avg_pool2d(rows, F::AvgPool2dFuncOptions({k, 1}).stride(1));
+}
+
 }  // namespace refocus

@@ -10,4 +10,9 @@ namespace refocus {
 torch::Tensor max_filter(const torch::Tensor& x, int radius);
 torch::Tensor min_filter(const torch::Tensor& x, int radius);
 
+// Box mean over (2r+1)² px with the edges replicated, separable in the same way (2(2r+1) adds a
+// pixel): equals avg_pool2d of kernel 2r+1, stride 1, over the map padded by replication, to
+// float rounding. The focal-stack radius filters 29 cost maps a frame with it.
+torch::Tensor box_filter(const torch::Tensor& x, int radius);
+
 }  // namespace refocus

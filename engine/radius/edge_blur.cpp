@@ -4,6 +4,8 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <map>
+#include <mutex>
 
 #include "util/error.h"
 
@@ -36,6 +38,20 @@ torch::Tensor sample(const torch::Tensor& img, const torch::Tensor& xs, const to
 torch::Tensor edge_spread_table(const LensBlurParams& kernel, const EdgeBlurOptions& o,
                                 std::vector<double>* radii_out, std::vector<double>* offsets_out) {
     const auto radii = grid(0.0, o.rmax, o.rstep), offsets = grid(-1.0, 1.0, 0.25);
+    if (radii_out) *radii_out = radii;
+    if (offsets_out) *offsets_out = offsets;
+    // The table costs ~10⁹ taps (49 radii up to 12 px) and depends only on the kernel and the
+    // grid: it is made once per process, not once per frame and layer.
+    static std::mutex mutex;
+    static std::map<std::vector<double>, torch::Tensor> cache;
+    const std::vector<double> key = {
+        double(kernel.kernel), kernel.beta, kernel.kappa, kernel.min_radius,
+        double(o.reach),       o.rmax,      o.rstep};
+    {
+        std::lock_guard<std::mutex> lock(mutex);
+        auto it = cache.find(key);
+        if (it != cache.end()) return it->second;
+    }
     // The lens blur layer normalises each source pixel's kernel over its in-image taps, so a
     // source within r of the image border deposits more into the taps it keeps: the rows and
     // columns read must be more than 2r from every border (nearer, the step's far side reads
@@ -58,9 +74,9 @@ torch::Tensor edge_spread_table(const LensBlurParams& kernel, const EdgeBlurOpti
         auto b = lens_blur(img, torch::full({Hh, Ww}, float(r)), kernel);
         rows.push_back(b.select(1, Hh / 2).narrow(1, margin, S).to(torch::kFloat64));
     }
-    if (radii_out) *radii_out = radii;
-    if (offsets_out) *offsets_out = offsets;
-    return torch::cat(rows, 0).contiguous();  // [R·O, S]
+    auto table = torch::cat(rows, 0).contiguous();  // [R·O, S]
+    std::lock_guard<std::mutex> lock(mutex);
+    return cache.emplace(key, table).first->second;
 }
 
 EdgeBlurSamples measure_edge_blur(const torch::Tensor& luma_in, const torch::Tensor& allowed_in,

@@ -14,6 +14,7 @@
 #include "ops/morphology.h"
 #include "ops/uniform_blur.h"
 #include "prepare/coc.h"
+#include "util/timing.h"
 
 namespace refocus {
 
@@ -22,9 +23,7 @@ namespace F = torch::nn::functional;
 namespace {
 
 torch::Tensor box(const torch::Tensor& x, int r) {  // [N,C,H,W] box mean, same size
-    const int k = 2 * r + 1;
-    return F::avg_pool2d(F::pad(x, F::PadFuncOptions({r, r, r, r}).mode(torch::kReplicate)),
-                         F::AvgPool2dFuncOptions(k).stride(1));
+    return box_filter(x, r);
 }
 
 // Warp [N,C,h,w] images onto an H x W grid: output pixel p reads the source at m·p (bicubic).
@@ -259,8 +258,14 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas,
     const int64_t Hc = own.size(0), Wc = own.size(1), H = d.height, W = d.width;
     FloorBins edges = floor_bins(Hc, Wc, o);
     int64_t measured = 0, candidates = 0;
+    // The floor is the composite's, on the canvas: a long clip's frames repeat the same readings,
+    // so at most floor_frames of them, spread over the clip, are read.
+    std::vector<int64_t> read;
+    const int64_t n = std::min<int64_t>(d.frames, std::max(o.floor_frames, 1));
+    for (int64_t i = 0; i < n; ++i)
+        read.push_back(n == 1 ? 0 : (i * (d.frames - 1) + (n - 1) / 2) / (n - 1));
     std::vector<torch::Tensor> lumas;
-    for (int64_t t = 0; t < d.frames; ++t) {
+    for (int64_t t : read) {
         const auto& f = d.input[t];
         lumas.push_back(0.2126 * f[0] + 0.7152 * f[1] + 0.0722 * f[2]);
         auto allowed = region.defined() ? (region[t][0] > 0.5) : torch::ones({H, W}, torch::kBool);
@@ -295,13 +300,14 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas,
     FloorBins tiles = floor_bins(Hc, Wc, o);
     int64_t tested = 0;
     if (o.spectral) {
-        for (int64_t t = 0; t < d.frames; ++t) {
+        for (size_t i = 0; i < read.size(); ++i) {
+            const int64_t t = read[i];
             auto allowed = region.defined()
                                ? erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0),
                                        o.floor_gate_clear_px)[0][0] > 0.5
                                : torch::ones({H, W}, torch::kBool);
             const SpectralBlurSamples s =
-                measure_spectral_blur(lumas[t], allowed, d.blur, o.spectral_blur);
+                measure_spectral_blur(lumas[i], allowed, d.blur, o.spectral_blur);
             tested += s.tiles;
             // A tile reading under floor_max contradicts the edges: a panel of checkers or a
             // sunburst, whose harmonics a small blur explains better.
@@ -355,6 +361,7 @@ struct LayerComposite {
 //    sharpest frame at each pixel among the views whose contrast window lies inside their frame.
 LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
                                const torch::Tensor& region, const StackCocOptions& o) {
+    ScopedTiming timing("radius: the composite");
     const int64_t T = d.frames, H = d.height, W = d.width;
     LayerComposite c;
     const AtlasBox box_ref = mapped_frames_box(to_ref_in, H, W);
@@ -437,21 +444,35 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
     // Pixels whose matching window reads canvas the composite does not cover are not measured.
     auto seen = erode(warp(c.covered, c.to_canvas[t], H, W, true).gt(0.999).to(torch::kFloat32),
                       o.window)[0][0];
-    std::vector<torch::Tensor> costs;
+    // The windowed cost of each radius, one map at a time: only its running least and largest,
+    // the argmin and the costs beside it (for the parabola) are kept, not K frame-sized maps.
+    StageClock clock;
+    clock.next("radius: blurs and costs");
     const auto spectrum = o.direct_blur ? torch::Tensor() : bank.spectrum(aif_t);
-    for (size_t k = 0; k < radii.size(); ++k) {
-        const double r = radii[k];
-        auto b = r < bp.min_radius ? aif_t
-                 : o.direct_blur   ? lens_blur(aif_t, torch::full({H, W}, float(r)), bp)
-                                   : bank.blur(spectrum, k);
-        costs.push_back((b - d.input[t]).pow(2).sum(0, true));
+    torch::Tensor cmin, cmax, best, c0, c1, c2, prev;
+    for (int64_t k = 0; k < K; ++k) {
+        const double rk = radii[k];
+        auto b = rk < bp.min_radius ? aif_t
+                 : o.direct_blur    ? lens_blur(aif_t, torch::full({H, W}, float(rk)), bp)
+                                    : bank.blur(spectrum, k);
+        auto ck = box((b - d.input[t]).pow(2).sum(0, true).unsqueeze(0), o.window)[0][0];
+        if (k == 0) {
+            cmin = ck, cmax = ck, prev = ck;
+            best = torch::zeros({H, W}, torch::kLong);
+            c0 = c1 = c2 = ck;
+            continue;
+        }
+        auto lower = ck < cmin;  // the first least, as argmin
+        c2 = torch::where(best == k - 1, ck, c2);
+        c0 = torch::where(lower, prev, c0);
+        c1 = torch::where(lower, ck, c1);
+        best = torch::where(lower, torch::full_like(best, k), best);
+        cmin = torch::minimum(cmin, ck);
+        cmax = torch::maximum(cmax, ck);
+        prev = ck;
     }
-    auto cost = box(torch::stack(costs), o.window).squeeze(1);  // [K,H,W]
-    auto best = cost.argmin(0);                                 // [H,W]
+    clock.next("radius: argmin");
     // Sub-step refinement: parabola through the neighbours of the minimum.
-    auto bi = best.clamp(1, K - 2);
-    auto c0 = cost.gather(0, (bi - 1).unsqueeze(0))[0], c1 = cost.gather(0, bi.unsqueeze(0))[0],
-         c2 = cost.gather(0, (bi + 1).unsqueeze(0))[0];
     auto denom = (c0 - 2 * c1 + c2);
     auto off = torch::where(denom > 1e-12, 0.5 * (c0 - c2) / denom.clamp_min(1e-12),
                             torch::zeros_like(denom))
@@ -459,8 +480,7 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
     auto interior = (best >= 1) & (best <= K - 2);
     auto r = best.to(torch::kFloat32) * o.rstep +
              torch::where(interior, off, torch::zeros_like(off)) * o.rstep;
-    auto cmin = std::get<0>(cost.min(0));
-    auto conf = (std::get<0>(cost.max(0)) - cmin) / (float(2 * o.window + 1) * (2 * o.window + 1));
+    auto conf = (cmax - cmin) / (float(2 * o.window + 1) * (2 * o.window + 1));
     // Explained variance: the composite blurred to the right radius explains nearly all of the
     // frame's local variance where it is the same content. Where it is other content (a mask
     // holding wall texture, a bad registration) the cost only falls with r as blur flattens the
@@ -472,6 +492,7 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
     auto trust = ((explained - o.min_explained) / (1.0 - o.min_explained)).clamp(0, 1);
     auto wt = (conf > o.min_confidence).to(torch::kFloat32).mul(conf) * seen * trust;
     if (region.defined()) wt = wt * (region[t][0] > 0.5).to(torch::kFloat32);
+    clock.next("radius: spread");
     Image guide = tensor_to_image(d.input[t].mean(0, true));
     Image src = tensor_to_image(r.unsqueeze(0));
     Image weight = tensor_to_image(wt.unsqueeze(0));
@@ -598,6 +619,7 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in,
     const LayerComposite c = layer_composite(d, to_ref_in, region, o);
     std::vector<torch::Tensor> out;
     for (int64_t t = 0; t < d.frames; ++t) out.push_back(relative_radius(d, c, region, t, bank, o));
+    ScopedTiming timing("radius: the floor");
     if (o.absolute) add_absolute_floor(d, c, region, out, o, report, fixed_share);
     return torch::stack(out).contiguous();
 }

@@ -41,6 +41,7 @@ struct StackCocOptions {
     bool absolute = true;
     EdgeBlurOptions edge;
     int min_edges = 20;          // fewer accepted edges in a layer's composite: no floor there
+    int floor_frames = 30;       // frames whose edges and tiles are read (spread over the clip)
     int min_local_edges = 3;     // edges within the spread window a pixel's floor averages
     int floor_fill_cells = 4;    // empty floor cells take their measured neighbours' up to this far
     double floor_rel_max = 1.0;  // edges count where the frame is within this of its sharpest view
