@@ -513,6 +513,11 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
                                                m_opts.fallback_change, m_opts.fallback_floor);
             return u;
         });
+    // Only the window around the frame asked for is kept: an export goes in order, and a 1080p
+    // clip's 240 shares would hold 2 GB.
+    const int keep = std::max(m_opts.fallback_frames, 0) + 1;
+    for (int s = 0; s < int(m_unexplained.size()); ++s)
+        if (std::abs(s - t) > keep) m_unexplained[s] = torch::Tensor();
     if (!f.defined() || !(f > 1e-3).any().item<bool>()) return {};
     return f;
 }
@@ -528,6 +533,11 @@ torch::Tensor FitEngine::sharpest_seen_map(int t) const {
     // them, serves every frame.
     const bool still = m_data->static_camera;
     const int i = still ? 0 : t;
+    // A moving camera's maps are per frame: the neighbours' are kept (export and playback go in
+    // order), not every frame's (at 1080p × 240, 4 GB).
+    if (!still)
+        for (int s = 0; s < int(m_seen.size()); ++s)
+            if (std::abs(s - t) > 2) m_seen[s] = m_seen_range[s] = torch::Tensor();
     auto& best = m_seen[i];
     if (!best.defined()) {
         // Where a frame did not see the pixel it reads past any trust: it lowers no minimum.

@@ -2,6 +2,7 @@
 
 #include <torch/torch.h>
 
+#include <future>
 #include <thread>
 
 #include "edit/atlas_edit.h"
@@ -464,15 +465,31 @@ std::vector<std::string> export_pass(FitEngine& engine, ExportPass pass, const s
                     " is not inside the clip's frames 0.." + std::to_string(d.frames - 1));
     PassFrames frames(engine, pass, cf == ClipFormat::Mp4, o);
     ClipWriter writer(out, name, cf, pass_write_options(pass, o.fps));
-    for (int t = first; t <= last; ++t) {
-        const Image frame = frames.frame(t);
-        refuse_nonfinite(frame, name, t);
-        ScopedTiming timing("export: write");
-        writer.write(frame);
-        if (o.progress && !o.progress(t - first + 1, last - first + 1)) {
-            writer.cancel();
-            throw Error("export cancelled");
+    // Frame t is written (encoded, compressed) on a second thread while frame t + 1 is made; one
+    // write at a time keeps the order. An error in either is raised here.
+    std::future<void> pending;
+    auto finish_write = [&] {
+        if (pending.valid()) pending.get();
+    };
+    try {
+        for (int t = first; t <= last; ++t) {
+            Image frame = frames.frame(t);
+            refuse_nonfinite(frame, name, t);
+            finish_write();
+            pending = std::async(std::launch::async, [&writer, f = std::move(frame)] {
+                ScopedTiming timing("export: write");
+                writer.write(f);
+            });
+            if (o.progress && !o.progress(t - first + 1, last - first + 1)) {
+                finish_write();
+                writer.cancel();
+                throw Error("export cancelled");
+            }
         }
+        finish_write();
+    } catch (...) {
+        if (pending.valid()) pending.wait();  // the writer outlives its last write
+        throw;
     }
     return writer.finish();
 }
