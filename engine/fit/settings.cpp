@@ -229,6 +229,8 @@ const std::vector<Field<StackCocOptions>>& radius_fields() {
          "a layer blurred past what edges measure is read from tile spectra"},
         {"radius.floor_frames", &O::floor_frames, 1, 1e6,
          "frames whose edges and tiles the floor reads, spread over the clip"},
+        {"radius.floor_edges", &O::floor_edges, 0, 1e9,
+         "edges the floor tests over those frames in all (0: up to 40000 a frame)"},
     };
     return f;
 }

@@ -264,12 +264,18 @@ torch::Tensor absolute_floor(const FitData& d, const torch::Tensor& to_canvas,
     const int64_t n = std::min<int64_t>(d.frames, std::max(o.floor_frames, 1));
     for (int64_t i = 0; i < n; ++i)
         read.push_back(n == 1 ? 0 : (i * (d.frames - 1) + (n - 1) / 2) / (n - 1));
+    // The edges tested are shared among the frames read (a frame's own cap still holds): the
+    // floor's cells need tens of readings, not the 20 000 a frame a 640 px proxy offers.
+    EdgeBlurOptions edge = o.edge;
+    if (o.floor_edges > 0)
+        edge.max_candidates = std::max<int>(
+            1, std::min<int64_t>(edge.max_candidates, o.floor_edges / int64_t(read.size())));
     std::vector<torch::Tensor> lumas;
     for (int64_t t : read) {
         const auto& f = d.input[t];
         lumas.push_back(0.2126 * f[0] + 0.7152 * f[1] + 0.0722 * f[2]);
         auto allowed = region.defined() ? (region[t][0] > 0.5) : torch::ones({H, W}, torch::kBool);
-        const EdgeBlurSamples e = measure_edge_blur(lumas.back(), allowed, d.blur, o.edge);
+        const EdgeBlurSamples e = measure_edge_blur(lumas.back(), allowed, d.blur, edge);
         measured += e.size();
         candidates += e.candidates;
         if (e.size()) add_readings(edges, e.x, e.y, e.radius, rel[t], to_canvas[t], o);

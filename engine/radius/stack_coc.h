@@ -40,9 +40,11 @@ struct StackCocOptions {
     // stack's relative radius: r_t = sqrt(r0² + r_rel²) (second moments add). Off: relative only.
     bool absolute = true;
     EdgeBlurOptions edge;
-    int min_edges = 20;          // fewer accepted edges in a layer's composite: no floor there
-    int floor_frames = 30;       // frames whose edges and tiles are read (spread over the clip)
-    int min_local_edges = 3;     // edges within the spread window a pixel's floor averages
+    int min_edges = 20;            // fewer accepted edges in a layer's composite: no floor there
+    int floor_frames = 30;         // frames whose edges and tiles are read (spread over the clip)
+    int64_t floor_edges = 200000;  // edges tested over those frames in all (0: edge.max_candidates
+                                   //   a frame); a 320×180 clip offers fewer
+    int min_local_edges = 3;       // edges within the spread window a pixel's floor averages
     int floor_fill_cells = 4;    // empty floor cells take their measured neighbours' up to this far
     double floor_rel_max = 1.0;  // edges count where the frame is within this of its sharpest view
     double floor_gate_lo = 1.5;  // the floor applies where no frame sees the point blurrier than
