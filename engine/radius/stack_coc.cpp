@@ -23,10 +23,6 @@ namespace F = torch::nn::functional;
 
 namespace {
 
-torch::Tensor box(const torch::Tensor& x, int r) {  // [N,C,H,W] box mean, same size
-    return box_filter(x, r);
-}
-
 // Warp [N,C,h,w] images onto an H x W grid: output pixel p reads the source at m·p (bicubic).
 // `zeros` pads outside the source with 0 (for validity maps), otherwise with the border value.
 torch::Tensor warp(const torch::Tensor& src, const torch::Tensor& m, int64_t H, int64_t W,
@@ -116,7 +112,7 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
         auto lap = F::conv2d(F::pad(luma, F::PadFuncOptions({1, 1, 1, 1}).mode(torch::kReplicate)),
                              lap_kernel);
         v.valid = erode(reg_valid.unsqueeze(0), o.contrast_window + 1);
-        v.contrast = box(lap.pow(2), o.contrast_window) * v.valid;
+        v.contrast = box_filter(lap.pow(2), o.contrast_window) * v.valid;
         if (region.defined())
             v.own = (warp(region[t].unsqueeze(0), inv, Hc, Wc, true).clamp(0, 1) > 0.5)
                         .to(torch::kFloat32);
@@ -180,7 +176,7 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
         auto b = rk < bp.min_radius ? aif_t
                  : o.direct_blur    ? lens_blur(aif_t, torch::full({H, W}, float(rk)), bp)
                                     : bank.blur(spectrum, k);
-        auto ck = box((b - d.input[t]).pow(2).sum(0, true).unsqueeze(0), o.window)[0][0];
+        auto ck = box_filter((b - d.input[t]).pow(2).sum(0, true).unsqueeze(0), o.window)[0][0];
         if (k == 0) {
             cmin = ck, cmax = ck, prev = ck;
             best = torch::zeros({H, W}, torch::kLong);
@@ -211,8 +207,9 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
     // holding wall texture, a bad registration) the cost only falls with r as blur flattens the
     // mismatch to its mean, and its minimum, at a large r, explains little.
     auto frame = d.input[t].unsqueeze(0);
-    auto var =
-        (box(frame.pow(2), o.window) - box(frame, o.window).pow(2)).sum(1)[0].clamp_min(1e-8);
+    auto var = (box_filter(frame.pow(2), o.window) - box_filter(frame, o.window).pow(2))
+                   .sum(1)[0]
+                   .clamp_min(1e-8);
     auto explained = 1.0 - cmin / var;
     auto trust = ((explained - o.min_explained) / (1.0 - o.min_explained)).clamp(0, 1);
     auto wt = (conf > o.min_confidence).to(torch::kFloat32).mul(conf) * seen * trust;
