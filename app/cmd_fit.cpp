@@ -112,6 +112,9 @@ int cmd_fit(int argc, char** argv) {
     if (a.has("mask")) s.setup.mask_path = a.get("mask");
     s.setup.force_prepare = a.has("reprepare");
 
+    if (resume && !FitEngine::has_checkpoint(fit_dir(project)))
+        throw Error(file_error(fit_dir(project).string(),
+                               "nothing to resume: no checkpoint (run without --resume)"));
     PrepareLog log([](const std::string& line) { std::fprintf(stderr, "  %s\n", line.c_str()); });
     StageProgress prep("prepare");
     prep.keep_alive(10.0);
@@ -129,7 +132,8 @@ int cmd_fit(int argc, char** argv) {
                  project.frames);
     StageProgress setup_bar("set-up");
     setup_bar.keep_alive(10.0);
-    FitEngine engine(data, s.fit);
+    // A resumed fit's checkpoint replaces the alignment and the atlases the set-up would make.
+    FitEngine engine(data, resume ? restoring_options(project, s.fit) : s.fit);
     setup_bar.done("model ready");
     for (const auto& line : engine.model_notes()) log.info(line);
     const double setup_s = seconds_since(started) - prep_s;
@@ -137,9 +141,6 @@ int cmd_fit(int argc, char** argv) {
     if (timing_enabled()) add_timing("prepare (all)", prep_s), add_timing("set-up (all)", setup_s);
     const fs::path dir = fit_dir(project);
     if (resume) {
-        if (!FitEngine::has_checkpoint(dir))
-            throw Error(file_error(dir.string(),
-                                   "nothing to resume: no checkpoint (run without --resume)"));
         engine.load_checkpoint(dir);
         std::fprintf(stderr, "resumed at step %lld (%.1f s of training)\n",
                      static_cast<long long>(engine.snapshot().step), engine.snapshot().elapsed_s);

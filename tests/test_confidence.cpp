@@ -381,6 +381,14 @@ TEST_CASE("separable max and min filters equal max pooling over the square windo
     }
     // A window wider than the map: every pixel takes the map's extreme.
     CHECK(torch::equal(max_filter(x, 80)[0], x[0].amax({1, 2}, true).expand({1, 37, 53})));
+    // Windows from 4 px take the running max (van Herk / Gil-Werman): several planes, a window
+    // wider than the map along one axis only, a view that is not contiguous.
+    const auto y = torch::rand({2, 3, 23, 71}).transpose(2, 3);  // [2,3,71,23], strided
+    for (int r : {4, 5, 12, 30}) {
+        CAPTURE(r);
+        CHECK(torch::equal(max_filter(y, r),
+                           F::max_pool2d(y, F::MaxPool2dFuncOptions(2 * r + 1).stride(1).padding(r))));
+    }
 }
 
 TEST_CASE("the separable box mean equals the square average pool over a replicated border") {

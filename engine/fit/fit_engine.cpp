@@ -51,6 +51,8 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
     if (m_opts.crop_px != 0 && m_opts.crop_px < 32)
         throw Error("fit: fit.crop_px must be 0 (whole frames) or at least 32 px (got " +
                     std::to_string(m_opts.crop_px) + ")");
+    StageClock clock;  // --debug timing
+    clock.next("set-up: checks");
     {
         torch::NoGradGuard g;
         // Frame by frame: a long clip's arrays are file mappings (util/mapped.h), and a check
@@ -65,15 +67,20 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
         m_resid = m_data->clip_array({m_data->frames, 1, m_data->height, m_data->width});
         m_resid.fill_(-1.0f);
     }
+    clock.end();
     build_model();
 }
 
 void FitEngine::build_model() {
     const bool atlas = has_atlas();  // a model without atlases blurs each frame by its own map
-    if (m_opts.layer_radius && atlas)
-        split_radius_by_layer(*m_data);
-    else
-        m_data->radius_fg = m_data->radius_bg = torch::Tensor();
+    {
+        StageClock clock;
+        clock.next("set-up: each layer's radius", "each layer's radius");
+        if (m_opts.layer_radius && atlas)
+            split_radius_by_layer(*m_data);
+        else
+            m_data->radius_fg = m_data->radius_bg = torch::Tensor();
+    }
     debug_memory("engine: radius split by layer");
     m_model = make_model(m_opts.preset, *m_data, m_opts.seed, m_opts.settings);
     debug_memory("engine: model made");

@@ -112,6 +112,17 @@ bool checkpoint_holds_geometry(const fs::path& dir) {
 }
 }  // namespace
 
+FitOptions restoring_options(const Project& p, FitOptions fit) {
+    // ECC alignment is most of the set-up, and the checkpoint's geometry replaces what it finds;
+    // fusing the atlases is the rest of it, and the checkpoint replaces them too.
+    if (fit.preset == "fast" && FitEngine::has_checkpoint(fit_dir(p)) &&
+        checkpoint_holds_geometry(fit_dir(p))) {
+        fit.settings.set("fast.align_rounds", "0");
+        fit.settings.set("fast.restore_only", "1");
+    }
+    return fit;
+}
+
 std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
     if (!FitEngine::has_checkpoint(fit_dir(p)))
         throw Error(file_error(p.project_file().string(),
@@ -120,14 +131,7 @@ std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
     FitSettings s = read_fit_settings(p);
     auto data = build_fit_data(p, s.setup, log);
     if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.iters = 1;
-    // ECC alignment is most of the set-up before a fitted project's first frame, and the
-    // checkpoint's geometry replaces what it finds (these settings are not stored).
-    // Fusing the atlases is the rest of it, and the checkpoint replaces them too.
-    if (s.fit.preset == "fast" && checkpoint_holds_geometry(fit_dir(p))) {
-        s.fit.settings.set("fast.align_rounds", "0");
-        s.fit.settings.set("fast.restore_only", "1");
-    }
-    auto engine = std::make_unique<FitEngine>(data, s.fit);
+    auto engine = std::make_unique<FitEngine>(data, restoring_options(p, s.fit));
     engine->load_checkpoint(fit_dir(p));
     return engine;
 }

@@ -26,6 +26,10 @@ FitSettings read_fit_settings(const Project& project);
 // Writes the settings and the engine's status into the "fit" section and saves project.json.
 void write_fit_settings(Project& project, const FitSettings& s, const FitSnapshot* snap);
 
+// The options of a model whose set-up the project's checkpoint replaces (export, the studio,
+// `fit --resume`): no ECC alignment and no fused atlases where the checkpoint holds the
+// geometry. Only the engine sees them; project.json keeps `fit` as it was.
+FitOptions restoring_options(const Project& project, FitOptions fit);
 // Rebuilds the data and loads the latest checkpoint: a fitted project ready to render/export.
 std::unique_ptr<FitEngine> open_fitted(const Project& project, PrepareLog& log);
 
