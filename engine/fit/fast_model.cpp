@@ -284,10 +284,16 @@ torch::Tensor FastModel::compose(const Atlas& a) const {
 
 torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
                               const torch::Tensor& what, bool with_warp) const {
+    const torch::Tensor& src = what.defined() ? what : m_data.input;
+    return fuse(
+        a, [&](int64_t t) { return weight[t]; }, [&](int64_t t) { return src[t]; }, with_warp);
+}
+
+torch::Tensor FastModel::fuse(const Atlas& a, const FrameFn& weight, const FrameFn& src,
+                              bool with_warp) const {
     // The margin starts as the frames' edges replicated outward, trusted 1000x less than what a
     // frame saw (a moving camera sees another frame's margin).
     const int64_t P = m_opts.pad;
-    const torch::Tensor& src = what.defined() ? what : m_data.input;
     // The residual warps as map_coords adds them, when asked: only the first atlas is fused
     // through warps (from the flow); later fusions (TV weights, coverage) read the geometry,
     // which a resumed fit must find as the uninterrupted one did.
@@ -305,18 +311,15 @@ torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
             const int64_t H = m_data.height, W = m_data.width;
             return (a.scale * pad_edges(upsample(a.warp[t].unsqueeze(0), H, W, true), P))[0];
         };
-    if (P == 0)
-        return fuse_frames(
-            a.to_atlas, a.height, a.width, [&](int64_t t) { return src[t]; },
-            [&](int64_t t) { return weight[t]; }, offset);
+    if (P == 0) return fuse_frames(a.to_atlas, a.height, a.width, src, weight, offset);
     auto inside = F::pad(torch::ones({1, 1, m_data.height, m_data.width}),
                          F::PadFuncOptions({P, P, P, P}).value(1e-3));
     auto shift = translation(-P, -P).to(a.to_atlas.dtype());
     // Frame by frame: the padded clip would be a clip-sized temporary.
     return fuse_frames(
         torch::matmul(a.to_atlas, shift), a.height, a.width,
-        [&](int64_t t) { return pad_edges(src[t].unsqueeze(0), P)[0]; },
-        [&](int64_t t) { return (pad_edges(weight[t].unsqueeze(0), P) * inside)[0]; }, offset);
+        [&](int64_t t) { return pad_edges(src(t).unsqueeze(0), P)[0]; },
+        [&](int64_t t) { return (pad_edges(weight(t).unsqueeze(0), P) * inside)[0]; }, offset);
 }
 
 void FastModel::init_levels(Atlas& a, const torch::Tensor& fused) {

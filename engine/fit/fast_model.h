@@ -180,13 +180,17 @@ class FastModel : public FitModel {
     // With `with_warp`, pulled back through the residual warps too.
     torch::Tensor fuse(const Atlas& a, const torch::Tensor& weight, const torch::Tensor& what = {},
                        bool with_warp = false) const;
+    // The same with each frame's weight ([1,H,W]) and source ([C,H,W]) made on demand: no
+    // clip-sized arrays of derived maps.
+    using FrameFn = std::function<torch::Tensor(int64_t)>;
+    torch::Tensor fuse(const Atlas& a, const FrameFn& weight, const FrameFn& what,
+                       bool with_warp = false) const;
     void update_tv_weights();  // each atlas's tv_weight, from the data and its geometry
     // The TV weights wait for the first priors(): a fused pass over every frame that an export
     // or a reopened project (renders only) never needs, and a resumed fit makes once.
     bool m_tv_stale = true;
-    torch::Tensor tv_weight_map(const Atlas& a, const torch::Tensor& radius,
-                                const torch::Tensor& weight, const torch::Tensor& views,
-                                double fade) const;
+    torch::Tensor tv_weight_map(const Atlas& a, const FrameFn& radius, const FrameFn& weight,
+                                const FrameFn& views, double fade) const;
     void set_atlas(Atlas& a, const torch::Tensor& rgb);
     static void rescale(Atlas& a, double s);
     // The composed foreground atlas ([3,h,w] or [1,3,h,w]) prefiltered for each frame's

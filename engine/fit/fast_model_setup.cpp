@@ -14,48 +14,54 @@
 #include "model/atlas_geometry.h"
 #include "util/debug.h"
 #include "util/error.h"
+#include "util/timing.h"
 
 namespace refocus {
 
 void FastModel::update_tv_weights() {
     // Weighted as the atlases were fused (the sharpest views of each layer), over the atlases'
-    // current geometry: a checkpoint may bring its own (adopt_geometry).
+    // current geometry: a checkpoint may bring its own (adopt_geometry). Each frame's maps are
+    // made as the fusion reads them: at 1080p x 240 a clip array of one of them is 2 GB.
     torch::NoGradGuard no_grad;
     const FitData& d = m_data;
     auto sharpness = [&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); };
     m_bg.tv_weight = m_fg.tv_weight = torch::Tensor();
     if (int(m_opts.tv_radius_layers) & 1) {
-        auto views = d.per_frame([&](int64_t t) {
+        const auto r = d.layer_radius(false);
+        auto views = [&](int64_t t) {
             return m_two_layers ? (1.0 - d.mask[t]).clamp_min(1e-3)
                                 : torch::ones({1, d.height, d.width});
-        });
-        m_bg.tv_weight =
-            tv_weight_map(m_bg, d.layer_radius(false).unsqueeze(1),
-                          d.per_frame([&](int64_t t) { return sharpness(t) * views[t]; }), views,
-                          m_opts.tv_radius_fade);
+        };
+        m_bg.tv_weight = tv_weight_map(
+            m_bg, [&](int64_t t) { return r[t].unsqueeze(0); },
+            [&](int64_t t) { return sharpness(t) * views(t); }, views, m_opts.tv_radius_fade);
     }
     if (m_two_layers && (int(m_opts.tv_radius_layers) & 2)) {
-        auto views = d.per_frame([&](int64_t t) { return d.mask[t].clamp_min(1e-3); });
+        const auto r = d.layer_radius(true);
+        auto views = [&](int64_t t) { return d.mask[t].clamp_min(1e-3); };
         // The subject's layer keeps the weight at any radius (no fade): a subject blurred in
         // every frame (synth pan's, 7 px) gains from it (docs/method.md, Model).
         m_fg.tv_weight = tv_weight_map(
-            m_fg, d.layer_radius(true).unsqueeze(1),
-            d.per_frame([&](int64_t t) { return sharpness(t) * views[t]; }), views, 0.0);
+            m_fg, [&](int64_t t) { return r[t].unsqueeze(0); },
+            [&](int64_t t) { return sharpness(t) * views(t); }, views, 0.0);
     }
 }
 
-torch::Tensor FastModel::tv_weight_map(const Atlas& a, const torch::Tensor& radius,
-                                       const torch::Tensor& weight, const torch::Tensor& views,
+torch::Tensor FastModel::tv_weight_map(const Atlas& a, const FrameFn& radius,
+                                       const FrameFn& weight, const FrameFn& views,
                                        double fade) const {
     // The radii each texel was seen at, fused into the atlas: toward its sharpest views (as the
     // texels are) and over all its views alike (their mean and spread); see tv_radius_factor.
+    // The mean and the mean square share their weights: one fusion of two channels.
     const double cap = m_opts.tv_radius_cap;
     if (!(cap > 1)) return torch::Tensor();
     auto sharp = fuse(a, weight, radius);  // [1,Ha,Wa], ~ the smallest radius seen
-    auto mean = fuse(a, views, radius);    // each view alike
-    auto square = m_data.per_frame([&](int64_t t) { return radius[t] * radius[t]; });
-    auto f = tv_radius_factor(sharp, mean, fuse(a, views, square), m_opts.tv_radius_gain, cap,
-                              m_opts.tv_radius_spread, fade);
+    auto moments = fuse(a, views, [&](int64_t t) {
+        const auto r = radius(t);
+        return torch::cat({r, r * r}, 0);
+    });  // [2,Ha,Wa]: each view alike
+    auto f = tv_radius_factor(sharp, moments.narrow(0, 0, 1), moments.narrow(0, 1, 1),
+                              m_opts.tv_radius_gain, cap, m_opts.tv_radius_spread, fade);
     return f.unsqueeze(0);
 }
 
@@ -86,16 +92,25 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
         return cv::Mat(int(h), int(w), CV_32F, l.data_ptr<float>()).clone();
     };
     for (int round = 0; round < m_opts.align_rounds; ++round) {
-        auto fused = fuse(a, weight).unsqueeze(0);
+        torch::Tensor fused;
+        {
+            ScopedTiming timing("align: fuse");
+            fused = fuse(a, weight).unsqueeze(0);
+        }
         std::vector<torch::Tensor> mats;
         for (int64_t t = 0; t < T; ++t) {
             auto m = a.to_atlas[t].to(torch::kFloat64);
-            auto p = torch::matmul(a.to_atlas[t], pixels.t());
-            auto px = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, h, w, 2});
-            auto render = sample_bicubic(fused, to_grid(a, px))[0];
-            auto radius = shrink(m_data.radius[t].unsqueeze(0))[0].div(double(k));
-            auto blurred = lens_blur(render.contiguous(), radius.contiguous(), m_data.blur);
-            cv::Mat tmpl = grey(shrink(m_data.input[t])), moving = grey(blurred);
+            cv::Mat tmpl, moving;
+            {
+                ScopedTiming timing("align: render and reblur");
+                auto p = torch::matmul(a.to_atlas[t], pixels.t());
+                auto px = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, h, w, 2});
+                auto render = sample_bicubic(fused, to_grid(a, px))[0];
+                auto radius = shrink(m_data.radius[t].unsqueeze(0))[0].div(double(k));
+                auto blurred = lens_blur(render.contiguous(), radius.contiguous(), m_data.blur);
+                tmpl = grey(shrink(m_data.input[t])), moving = grey(blurred);
+            }
+            ScopedTiming timing("align: ECC");
             auto rmask = (shrink(region[t])[0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
             cv::Mat mask(int(h), int(w), CV_8U, rmask.data_ptr<uint8_t>());
             if (cv::countNonZero(mask) < 64) {
