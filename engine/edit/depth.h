@@ -33,7 +33,9 @@
 //    the side where its confident neighbours lie (push-pull of the texels the data decided) when
 //    they clearly lie on one side (off the midpoint by more than a quarter of the gap), else
 //    the rule: the background goes behind the focal plane (smaller inverse depth) and the
-//    foreground in front of it (larger).
+//    foreground in front of it (larger). A moving camera's parallax field, where the fit has
+//    one, decides the background's ties before the neighbours and the rule: it orders the
+//    scene's depths whatever the focus did.
 //  - The whole solution mirrored (d, f, o → −d, −f, −o) fits equally: the mirror kept is the
 //    one with the foreground nearer than the background (median inverse depth), or with one
 //    layer the one where most pixels lie behind the focal plane.
@@ -96,9 +98,13 @@ struct DepthModel {
 
 // radius [T,H,W] px; uv_bg, uv_fg [T,H,W,2]; alpha [T,1,H,W]. uv_fg/alpha undefined (or a
 // zero-size fg atlas) for one layer. See the header comment for the model and method.
+// `bg_parallax` [bg_h,bg_w] (optional): the background's parallax field (plane + parallax,
+// fit/fast_model.h), relative inverse depth up to an affine map; where the radius leaves a
+// texel's side of the focal plane open, the side that follows γ is taken (depth_fit.cpp).
 DepthModel fit_depth(const torch::Tensor& radius, const torch::Tensor& uv_bg,
                      const torch::Tensor& uv_fg, const torch::Tensor& alpha, int bg_h, int bg_w,
-                     int fg_h, int fg_w, const DepthFitOptions& opts = {});
+                     int fg_h, int fg_w, const DepthFitOptions& opts = {},
+                     const torch::Tensor& bg_parallax = {});
 
 // Renders every frame's layers (the model locked per frame) and fits depth to the engine's
 // radius maps. Throws for the perframe preset (no atlas).
