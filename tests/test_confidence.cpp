@@ -386,8 +386,9 @@ TEST_CASE("separable max and min filters equal max pooling over the square windo
     const auto y = torch::rand({2, 3, 23, 71}).transpose(2, 3);  // [2,3,71,23], strided
     for (int r : {4, 5, 12, 30}) {
         CAPTURE(r);
-        CHECK(torch::equal(max_filter(y, r),
-                           F::max_pool2d(y, F::MaxPool2dFuncOptions(2 * r + 1).stride(1).padding(r))));
+        CHECK(torch::equal(
+            max_filter(y, r),
+            F::max_pool2d(y, F::MaxPool2dFuncOptions(2 * r + 1).stride(1).padding(r))));
     }
 }
 

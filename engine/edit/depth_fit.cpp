@@ -117,7 +117,7 @@ struct LayerFit {
         int t;
         float w, r;  // splat weight, weighted mean radius
     };
-    std::vector<TexObs> obs;  // sorted by texel, then frame
+    std::vector<TexObs> obs;   // sorted by texel, then frame
     std::vector<float> gamma;  // [H·W] parallax (relative inverse depth); empty: none
 };
 
@@ -394,9 +394,9 @@ bool parallax_sides(LayerFit& L, const std::vector<Solution>& sols,
             for (size_t x = 0; x < n; ++x) {
                 if (!ambiguous[x]) continue;
                 const double want = line.a * L.gamma[x] + line.b;
-                const float side = float(
-                    std::fabs(sols[x].hi - want) < std::fabs(sols[x].lo - want) ? sols[x].hi
-                                                                                : sols[x].lo);
+                const float side =
+                    float(std::fabs(sols[x].hi - want) < std::fabs(sols[x].lo - want) ? sols[x].hi
+                                                                                      : sols[x].lo);
                 changed += side != v[x];
                 v[x] = side;
             }

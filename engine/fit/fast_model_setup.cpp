@@ -48,9 +48,8 @@ void FastModel::update_tv_weights() {
     }
 }
 
-torch::Tensor FastModel::tv_weight_map(const Atlas& a, const FrameFn& radius,
-                                       const FrameFn& weight, const FrameFn& views,
-                                       double fade) const {
+torch::Tensor FastModel::tv_weight_map(const Atlas& a, const FrameFn& radius, const FrameFn& weight,
+                                       const FrameFn& views, double fade) const {
     // The radii each texel was seen at, fused into the atlas: toward its sharpest views (as the
     // texels are) and over all its views alike (their mean and spread); see tv_radius_factor.
     // The mean and the mean square share their weights: one fusion of two channels.
@@ -102,9 +101,9 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
     }
     auto proxy_mapping = [&]() {
         const double c = (k - 1) / 2.0;
-        auto B = torch::tensor({double(k), 0.0, c, 0.0, double(k), c, 0.0, 0.0, 1.0},
-                               torch::kFloat64)
-                     .view({3, 3});
+        auto B =
+            torch::tensor({double(k), 0.0, c, 0.0, double(k), c, 0.0, 0.0, 1.0}, torch::kFloat64)
+                .view({3, 3});
         auto Bi = torch::inverse(B);
         return torch::matmul(torch::matmul(Bi, a.to_atlas.to(torch::kFloat64)), B)
             .to(torch::kFloat32);
@@ -141,10 +140,10 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             // blur's support, the largest shift ECC may take, its 5 px smoothing): a subject's
             // box is a fraction of the frame; a wall's is the whole frame, as before.
             const auto radius = shrink(m_data.radius[t].unsqueeze(0))[0].div(double(k));
-            const int grow = int(std::ceil(lens_blur_support(radius.max().item<double>(),
-                                                             m_data.blur) +
-                                           max_shift / double(k))) +
-                             8;
+            const int grow =
+                int(std::ceil(lens_blur_support(radius.max().item<double>(), m_data.blur) +
+                              max_shift / double(k))) +
+                8;
             const cv::Rect box = (cv::boundingRect(full_mask) + cv::Size(2 * grow, 2 * grow) -
                                   cv::Point(grow, grow)) &
                                  cv::Rect(0, 0, int(w), int(h));

@@ -18,8 +18,8 @@ namespace {
 // starting at j spans at most two blocks, its max is max(h[j], g[j + k − 1]). Three comparisons
 // a sample whatever k. `lines` lines of `n` samples, `step` apart along the line and `lane`
 // apart between lines; lanes are walked in the inner loop so the column pass reads whole rows.
-void running_max(const float* in, float* out, int64_t lines, int64_t n, int64_t step,
-                 int64_t lane, int r) {
+void running_max(const float* in, float* out, int64_t lines, int64_t n, int64_t step, int64_t lane,
+                 int r) {
     const int64_t k = 2 * int64_t(r) + 1;
     const int64_t L = ((n + 2 * r + k - 1) / k) * k;  // padded length, whole blocks
     constexpr float kNeg = -std::numeric_limits<float>::infinity();
@@ -43,7 +43,8 @@ void running_max(const float* in, float* out, int64_t lines, int64_t n, int64_t 
         for (int64_t i = 0; i < n; ++i) {
             const float* hi = &h[size_t(i * m)];
             const float* gi = &g[size_t((i + k - 1) * m)];
-            for (int64_t l = 0; l < m; ++l) out[i * step + (l0 + l) * lane] = std::max(hi[l], gi[l]);
+            for (int64_t l = 0; l < m; ++l)
+                out[i * step + (l0 + l) * lane] = std::max(hi[l], gi[l]);
         }
     });
 }
@@ -62,7 +63,7 @@ torch::Tensor max_filter(const torch::Tensor& x, int radius) {
         for (int64_t p = 0; p < P; ++p) {
             const float* a = src.data_ptr<float>() + p * H * W;
             float* b = rows.data_ptr<float>() + p * H * W;
-            running_max(a, b, H, W, 1, W, radius);                                   // along x
+            running_max(a, b, H, W, 1, W, radius);                                  // along x
             running_max(b, out.data_ptr<float>() + p * H * W, W, H, W, 1, radius);  // along y
         }
         return out;
