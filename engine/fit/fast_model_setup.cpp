@@ -19,6 +19,59 @@
 
 namespace refocus {
 
+namespace {
+
+namespace F = torch::nn::functional;
+using FrameFn = std::function<torch::Tensor(int64_t)>;
+
+// The proxy's scale for a frame W px wide: frames at most `width` px wide (0: full size).
+int64_t proxy_factor(int64_t W, int64_t width) {
+    return width > 0 ? std::max<int64_t>(1, (W + width - 1) / width) : 1;
+}
+
+// [C,H,W] → [C,H/k,W/k], k × k block means (the last partial block left out).
+torch::Tensor shrink_by(const torch::Tensor& x, int64_t k) {
+    if (k == 1) return x;
+    const int64_t h = x.size(1) / k, w = x.size(2) / k;
+    return torch::avg_pool2d(x.narrow(1, 0, h * k).narrow(2, 0, w * k).unsqueeze(0), k)[0];
+}
+
+// Frames fused on a proxy k times smaller than frame and atlas: proxy atlas texel u_p is the
+// atlas's k·u_p + (k − 1)/2 (the mapping B⁻¹·M_t·B, B the proxy's scale), each frame its k × k
+// block means, its edges replicated ⌈pad/k⌉ px outward at weight 1e-3 as FastModel::fuse does.
+// [C, ⌈Ha/k⌉, ⌈Wa/k⌉].
+// B⁻¹·M_t·B [T,3,3] float64: frame proxy pixel → atlas proxy texel.
+torch::Tensor proxy_mapping(const torch::Tensor& to_atlas, int64_t k) {
+    const double c = (k - 1) / 2.0;
+    auto B = torch::tensor({double(k), 0.0, c, 0.0, double(k), c, 0.0, 0.0, 1.0}, torch::kFloat64)
+                 .view({3, 3});
+    return torch::matmul(torch::matmul(torch::inverse(B), to_atlas.to(torch::kFloat64)), B);
+}
+
+torch::Tensor fuse_on_proxy(const torch::Tensor& to_atlas, int64_t Ha, int64_t Wa, int64_t k,
+                            int64_t pad, const FrameFn& src, const FrameFn& weight) {
+    const auto to_proxy = proxy_mapping(to_atlas, k);
+    const int64_t ah = (Ha + k - 1) / k, aw = (Wa + k - 1) / k, p = (pad + k - 1) / k;
+    if (p == 0)
+        return fuse_frames(
+            to_proxy.to(torch::kFloat32), ah, aw, [&](int64_t t) { return shrink_by(src(t), k); },
+            [&](int64_t t) { return shrink_by(weight(t), k); });
+    auto edges = [&](const torch::Tensor& x) {
+        return F::pad(x.unsqueeze(0), F::PadFuncOptions({p, p, p, p}).mode(torch::kReplicate))[0];
+    };
+    return fuse_frames(
+        torch::matmul(to_proxy, translation(-p, -p).to(torch::kFloat64)).to(torch::kFloat32), ah,
+        aw, [&](int64_t t) { return edges(shrink_by(src(t), k)); },
+        [&](int64_t t) {
+            const auto w = shrink_by(weight(t), k);
+            auto inside = F::pad(torch::ones({1, 1, w.size(1), w.size(2)}),
+                                 F::PadFuncOptions({p, p, p, p}).value(1e-3))[0];
+            return edges(w) * inside;
+        });
+}
+
+}  // namespace
+
 void FastModel::update_tv_weights() {
     // Weighted as the atlases were fused (the sharpest views of each layer), over the atlases'
     // current geometry: a checkpoint may bring its own (adopt_geometry). Each frame's maps are
@@ -53,15 +106,30 @@ torch::Tensor FastModel::tv_weight_map(const Atlas& a, const FrameFn& radius, co
     // The radii each texel was seen at, fused into the atlas: toward its sharpest views (as the
     // texels are) and over all its views alike (their mean and spread); see tv_radius_factor.
     // The mean and the mean square share their weights: one fusion of two channels.
+    // Frames wider than the alignment's proxy are fused on it: the radius maps are the
+    // preparation's proxy scaled up (or a given map), and the factor is a smooth weight.
     const double cap = m_opts.tv_radius_cap;
     if (!(cap > 1)) return torch::Tensor();
-    auto sharp = fuse(a, weight, radius);  // [1,Ha,Wa], ~ the smallest radius seen
-    auto moments = fuse(a, views, [&](int64_t t) {
+    const int64_t k = proxy_factor(m_data.width, m_opts.align_width);
+    auto moment = [&](int64_t t) {
         const auto r = radius(t);
         return torch::cat({r, r * r}, 0);
-    });  // [2,Ha,Wa]: each view alike
+    };
+    torch::Tensor sharp, moments;  // [1,·,·] ~ the smallest radius seen; [2,·,·] each view alike
+    if (k == 1) {
+        sharp = fuse(a, weight, radius);
+        moments = fuse(a, views, moment);
+    } else {
+        sharp = fuse_on_proxy(a.to_atlas, a.height, a.width, k, m_opts.pad, radius, weight);
+        moments = fuse_on_proxy(a.to_atlas, a.height, a.width, k, m_opts.pad, moment, views);
+    }
     auto f = tv_radius_factor(sharp, moments.narrow(0, 0, 1), moments.narrow(0, 1, 1),
                               m_opts.tv_radius_gain, cap, m_opts.tv_radius_spread, fade);
+    if (k > 1)
+        f = F::interpolate(f.unsqueeze(0), F::InterpolateFuncOptions()
+                                               .size(std::vector<int64_t>{a.height, a.width})
+                                               .mode(torch::kBilinear)
+                                               .align_corners(false))[0];
     return f.unsqueeze(0);
 }
 
@@ -71,9 +139,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
     // ECC runs on a proxy at most align_width px wide: its window and iterations are tuned in
     // px, and the reblur's cost would grow with the square of the scale twice over. Proxy pixel
     // x_p is the frame's k·x_p + (k − 1)/2 (the mean of a k × k block).
-    const int64_t k = m_opts.align_width > 0
-                          ? std::max<int64_t>(1, (W + m_opts.align_width - 1) / m_opts.align_width)
-                          : 1;
+    const int64_t k = proxy_factor(W, m_opts.align_width);
     const int64_t h = H / k, w = W / k;
     torch::Tensor pixels = m_pixels;  // the proxy's pixel centres in frame px
     if (k > 1) {
@@ -86,9 +152,8 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
         if (k == 1) return x;
         return torch::avg_pool2d(x.narrow(1, 0, h * k).narrow(2, 0, w * k).unsqueeze(0), k)[0];
     };
-    // On a proxy the background's atlas is fused from the proxy frames too, into a proxy atlas
-    // whose texel u_p is the atlas's k·u_p + (k − 1)/2: mapping B⁻¹·M_t·B, B the proxy's scale.
-    // The render reads nothing finer, and the fusion costs k² less; 1280×720×60: the corners
+    // On a proxy the background's atlas is fused from the proxy frames too (fuse_on_proxy): the
+    // render reads nothing finer, and the fusion costs k² less; 1280×720×60: the corners
     // land within 0.03 px (median) of the full-size fusion's. The subject's atlas is small (its
     // fusion a fifth of the background's): it keeps the full size.
     const bool proxy_atlas = k > 1 && !affine;
@@ -99,15 +164,6 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             {torch::arange(h, torch::kFloat32), torch::arange(w, torch::kFloat32)}, "ij");
         proxy_px = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({h * w})}, 1);
     }
-    auto proxy_mapping = [&]() {
-        const double c = (k - 1) / 2.0;
-        auto B =
-            torch::tensor({double(k), 0.0, c, 0.0, double(k), c, 0.0, 0.0, 1.0}, torch::kFloat64)
-                .view({3, 3});
-        auto Bi = torch::inverse(B);
-        return torch::matmul(torch::matmul(Bi, a.to_atlas.to(torch::kFloat64)), B)
-            .to(torch::kFloat32);
-    };
     auto grey = [&](const torch::Tensor& rgb) {  // [3,h',w'] linear → sRGB luma, CV_32F
         auto l = srgb_encode(rgb);
         l = (0.299 * l[0] + 0.587 * l[1] + 0.114 * l[2]).contiguous();
@@ -120,10 +176,11 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
             if (!proxy_atlas) {
                 fused = fuse(a, weight).unsqueeze(0);
             } else {
-                to_proxy = proxy_mapping();
-                fused = fuse_frames(
-                            to_proxy, ah, aw, [&](int64_t t) { return shrink(m_data.input[t]); },
-                            [&](int64_t t) { return shrink(weight[t]); })
+                to_proxy = proxy_mapping(a.to_atlas, k).to(torch::kFloat32);
+                fused = fuse_on_proxy(
+                            a.to_atlas, a.height, a.width, k, 0,
+                            [&](int64_t t) { return m_data.input[t]; },
+                            [&](int64_t t) { return weight[t]; })
                             .unsqueeze(0);
             }
         }
