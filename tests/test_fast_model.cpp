@@ -419,3 +419,30 @@ TEST_CASE("alignment on a proxy corrects a frame's drift as at full size") {
     CHECK(proxy > none + 3.0);
     CHECK(proxy > full - 1.5);
 }
+
+TEST_CASE("TV weights fused on a proxy follow those fused at full size") {
+    // The per-texel TV factor (tv_radius_factor) of frames wider than align_width is fused on
+    // the proxy and upsampled: the radius maps are smooth, so the prior changes little.
+    auto [d, sharp] = pan_over_detail(4, 1.0, 1.0);
+    const int64_t T = d->frames, H = d->height, W = d->width;
+    auto ramp = (torch::arange(W, torch::kFloat32) / double(W - 1) * 2.5 + 0.5)
+                    .view({1, 1, W})
+                    .expand({T, H, W})
+                    .contiguous();
+    d->radius = ramp;  // 0.5 → 3 px across the frame: factor clamp(2r, 1, 4) varies
+    auto tv_of = [&](int width) {
+        FastModelOptions o;
+        o.align_rounds = 0;
+        o.align_width = width;
+        FastModel m(*d, o);
+        LossTerms terms;
+        const std::vector<int64_t> frames{0, 1};
+        m.priors(m.render(frames), frames, 100, terms);
+        return terms.at("tv");
+    };
+    const double full = tv_of(0), same = tv_of(int(W)), proxy = tv_of(int(W / 2));
+    MESSAGE("TV prior: full size " << full << ", on a half-size proxy " << proxy);
+    CHECK(same == full);  // frames no wider than align_width: the full-size path
+    CHECK(proxy != full);
+    CHECK(std::fabs(proxy - full) < 0.05 * full);
+}
