@@ -70,6 +70,56 @@ torch::Tensor fuse_on_proxy(const torch::Tensor& to_atlas, int64_t Ha, int64_t W
         });
 }
 
+// ECC (Evangelidis & Psarakis 2008) of the reblurred render `moving` onto the frame `tmpl`
+// over `mask`, both on the proxy k times smaller than the W × H frame: the correction in frame
+// px [3,3] (template pixel x ↦ render w·x), or the identity where ECC does not converge, moves a
+// corner max_shift px or more, or, on a camera judged static (hand shake only), where the frame
+// does not then match clearly better and well (ECC coefficient > 0.9 and +0.002: noise or
+// something in one frame only, a flash or a passer-by, is not hand shake).
+torch::Tensor ecc_translation(const cv::Mat& tmpl, const cv::Mat& moving, const cv::Mat& mask,
+                              int64_t k, int64_t W, int64_t H, double max_shift, bool static_camera,
+                              int round, int64_t t) {
+    // Translation only: the homography's shape is right, its drift is what accumulates; more
+    // degrees of freedom let ECC wander on heavily blurred frames.
+    cv::Mat warp = cv::Mat::eye(2, 3, CV_32F);
+    bool ok = true;
+    try {
+        cv::findTransformECC(
+            tmpl, moving, warp, cv::MOTION_TRANSLATION,
+            cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 60, 1e-5), mask, 5);
+    } catch (const cv::Exception&) {
+        ok = false;  // no convergence: keep the mapping
+    }
+    // The proxy's translation in frame px: k times (the block centres' offset cancels).
+    auto wf = torch::eye(3, torch::kFloat64);
+    for (int r = 0; r < warp.rows; ++r)
+        for (int c = 0; c < 3; ++c)
+            wf[r][c] = double(warp.at<float>(r, c)) * (c == 2 ? double(k) : 1.0);
+    double worst = 0;
+    for (double cy : {0.0, double(H - 1)})
+        for (double cx : {0.0, double(W - 1)}) {
+            auto q = torch::matmul(wf, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
+            worst = std::max(worst, std::hypot(q[0].item<double>() / q[2].item<double>() - cx,
+                                               q[1].item<double>() / q[2].item<double>() - cy));
+        }
+    if (debug_enabled("align"))
+        std::fprintf(stderr, "align round %d frame %lld: %s, corner shift %.2f px\n", round,
+                     (long long)t, ok ? "ok" : "failed", worst);
+    double rho0 = 0, rho1 = 0;
+    if (ok && static_camera) {
+        cv::Mat warped;
+        cv::warpAffine(moving, warped, warp, moving.size(), cv::INTER_LINEAR + cv::WARP_INVERSE_MAP,
+                       cv::BORDER_REPLICATE);
+        rho0 = cv::computeECC(tmpl, moving, mask);
+        rho1 = cv::computeECC(tmpl, warped, mask);
+        ok = rho1 > 0.9 && rho1 > rho0 + 0.002;
+    }
+    if (debug_enabled("align") && static_camera)
+        std::fprintf(stderr, "  static frame %lld: ECC coefficient %.4f -> %.4f\n", (long long)t,
+                     rho0, rho1);
+    return ok && worst < max_shift ? wf : torch::eye(3, torch::kFloat64);
+}
+
 }  // namespace
 
 void FastModel::update_tv_weights() {
@@ -232,53 +282,8 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
                 tmpl = grey(crop(shrink(m_data.input[t]))), moving = grey(blurred);
             }
             ScopedTiming timing("align: ECC");
-            // Translation only: the homography's shape is right, its drift is what accumulates;
-            // more degrees of freedom let ECC wander on heavily blurred frames.
-            cv::Mat warp = cv::Mat::eye(2, 3, CV_32F);
-            bool ok = true;
-            try {
-                cv::findTransformECC(
-                    tmpl, moving, warp, cv::MOTION_TRANSLATION,
-                    cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 60, 1e-5),
-                    mask, 5);
-            } catch (const cv::Exception&) {
-                ok = false;  // no convergence: keep the mapping
-            }
-            // The proxy's translation in frame px: k times (the block centres' offset cancels).
-            auto wf = torch::eye(3, torch::kFloat64);
-            for (int r = 0; r < warp.rows; ++r)
-                for (int c = 0; c < 3; ++c)
-                    wf[r][c] = double(warp.at<float>(r, c)) * (c == 2 ? double(k) : 1.0);
-            // ECC maps template (input frame) pixels to the render's: frame x ↦ render w·x,
-            // and the render pixel y sits at atlas m·y. Refuse corrections over max_shift px.
-            double worst = 0;
-            for (double cy : {0.0, double(H - 1)})
-                for (double cx : {0.0, double(W - 1)}) {
-                    auto q = torch::matmul(wf, torch::tensor({cx, cy, 1.0}, torch::kFloat64));
-                    worst =
-                        std::max(worst, std::hypot(q[0].item<double>() / q[2].item<double>() - cx,
-                                                   q[1].item<double>() / q[2].item<double>() - cy));
-                }
-            if (debug_enabled("align"))
-                std::fprintf(stderr, "align round %d frame %lld: %s, corner shift %.2f px\n", round,
-                             (long long)t, ok ? "ok" : "failed", worst);
-            // A camera judged static moves only by hand shake: the translation is kept where the
-            // frame then matches the reblurred atlas clearly better and well (ECC coefficient,
-            // unsmoothed), not where noise or something in one frame only (a flash, a passer-by)
-            // pulled it.
-            double rho0 = 0, rho1 = 0;
-            if (ok && static_camera) {
-                cv::Mat warped;
-                cv::warpAffine(moving, warped, warp, moving.size(),
-                               cv::INTER_LINEAR + cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
-                rho0 = cv::computeECC(tmpl, moving, mask);
-                rho1 = cv::computeECC(tmpl, warped, mask);
-                ok = rho1 > 0.9 && rho1 > rho0 + 0.002;
-            }
-            if (debug_enabled("align") && static_camera)
-                std::fprintf(stderr, "  static frame %lld: ECC coefficient %.4f -> %.4f\n",
-                             (long long)t, rho0, rho1);
-            mats.push_back(ok && worst < max_shift ? torch::matmul(m, wf) : m);
+            mats.push_back(torch::matmul(m, ecc_translation(tmpl, moving, mask, k, W, H, max_shift,
+                                                            static_camera, round, t)));
         }
         a.to_atlas = torch::stack(mats).to(torch::kFloat32);
     }
