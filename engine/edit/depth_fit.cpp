@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <mutex>
 
@@ -345,11 +346,11 @@ double fold_sides(const LayerFit& L, const std::vector<Solution>& sols,
 
 // Where the side of the focal plane is ambiguous, a parallax field decides (depth.h): γ is
 // affine in inverse depth with an unknown scale and sign. Where the texels the radius decided
-// spread over 0.5 px (a focus that moved), each ambiguous texel takes the side nearer a·γ + b,
-// the line fitted to the decided texels, then refitted to every texel, decided and chosen,
-// until no side changes; false (nothing written) where γ and the depths do not correlate
-// (|ρ| < 0.3). Where the focus barely moved, fold_sides; false where its fold explains under
-// 30 % of the texels' distances from the focal plane. False: the field says nothing here.
+// spread over 0.5 px and follow γ (|ρ| ≥ 0.3: a focus that moved), each ambiguous texel takes
+// the side nearer a·γ + b, the line fitted to the decided texels, then refitted to every texel,
+// decided and chosen, until no side changes; false (nothing written) where γ and the depths then
+// do not correlate (|ρ| < 0.3). Otherwise fold_sides; false where its fold explains under 30 %
+// of the texels' distances from the focal plane. False: the field says nothing here.
 bool parallax_sides(LayerFit& L, const std::vector<Solution>& sols,
                     const std::vector<float>& confident) {
     const size_t n = L.d.size();
@@ -385,7 +386,7 @@ bool parallax_sides(LayerFit& L, const std::vector<Solution>& sols,
         return line;
     };
     Line line = fit(true);
-    if (line.sd < 0.5) {
+    if (line.sd < 0.5 || !(std::fabs(line.rho) >= 0.3)) {
         if (!(fold_sides(L, sols, ambiguous, v) >= 0.3)) return false;
     } else {
         for (int round = 0; round < 20; ++round) {
