@@ -267,5 +267,13 @@ TEST_CASE("fit worker: closing during a fit checkpoints it; reopening loads it")
     FitWorker w;
     w.open(p);
     REQUIRE(wait_for([&] { return idle(w) && w.has_engine(); }, 60));
-    CHECK(w.status().snap.step >= reached);
+    const int64_t reopened = w.status().snap.step;
+    CHECK(reopened >= reached);
+    // Continue fitting: the engines open from the checkpoint (restoring_options) and go on from
+    // its step.
+    FitSettings more;
+    more.fit.iters = 3;
+    w.start(more, true);
+    REQUIRE(wait_for([&] { return idle(w) && w.status().snap.step >= reopened + 3; }, 120));
+    CHECK(w.status().snap.step == reopened + 3);
 }

@@ -36,11 +36,8 @@ torch::Tensor shrink_by(const torch::Tensor& x, int64_t k) {
     return torch::avg_pool2d(x.narrow(1, 0, h * k).narrow(2, 0, w * k).unsqueeze(0), k)[0];
 }
 
-// Frames fused on a proxy k times smaller than frame and atlas: proxy atlas texel u_p is the
-// atlas's k·u_p + (k − 1)/2 (the mapping B⁻¹·M_t·B, B the proxy's scale), each frame its k × k
-// block means, its edges replicated ⌈pad/k⌉ px outward at weight 1e-3 as FastModel::fuse does.
-// [C, ⌈Ha/k⌉, ⌈Wa/k⌉].
-// B⁻¹·M_t·B [T,3,3] float64: frame proxy pixel → atlas proxy texel.
+// B⁻¹·M_t·B [T,3,3] float64: frame proxy pixel → atlas proxy texel, B the proxy's scale (proxy
+// pixel x_p is the frame's k·x_p + (k − 1)/2, and so for the atlas).
 torch::Tensor proxy_mapping(const torch::Tensor& to_atlas, int64_t k) {
     const double c = (k - 1) / 2.0;
     auto B = torch::tensor({double(k), 0.0, c, 0.0, double(k), c, 0.0, 0.0, 1.0}, torch::kFloat64)
@@ -48,6 +45,9 @@ torch::Tensor proxy_mapping(const torch::Tensor& to_atlas, int64_t k) {
     return torch::matmul(torch::matmul(torch::inverse(B), to_atlas.to(torch::kFloat64)), B);
 }
 
+// Frames fused on a proxy k times smaller than frame and atlas (proxy_mapping), each frame its
+// k × k block means, its edges replicated ⌈pad/k⌉ px outward at weight 1e-3 as FastModel::fuse
+// does. [C, ⌈Ha/k⌉, ⌈Wa/k⌉].
 torch::Tensor fuse_on_proxy(const torch::Tensor& to_atlas, int64_t Ha, int64_t Wa, int64_t k,
                             int64_t pad, const FrameFn& src, const FrameFn& weight) {
     const auto to_proxy = proxy_mapping(to_atlas, k);

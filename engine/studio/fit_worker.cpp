@@ -286,14 +286,15 @@ void FitWorker::start(const FitSettings& settings, bool resume) {
         }
         std::unique_ptr<FitEngine> engine;
         if (can_resume) {
-            // The budget counts from where the checkpoint stopped.
-            auto probe = std::make_unique<FitEngine>(data, s.fit);
+            // The budget counts from where the checkpoint stopped. Both engines open from the
+            // checkpoint without the set-up's alignment and fusions (restoring_options).
+            auto probe = std::make_unique<FitEngine>(data, restoring_options(*m_project, s.fit));
             probe->load_checkpoint(dir);
             const FitSnapshot at = probe->snapshot();
             if (s.fit.minutes > 0) s.fit.minutes += at.elapsed_s / 60.0;
             if (s.fit.iters > 0) s.fit.iters += at.step;
             probe.reset();
-            engine = std::make_unique<FitEngine>(data, s.fit);
+            engine = std::make_unique<FitEngine>(data, restoring_options(*m_project, s.fit));
             engine->load_checkpoint(dir);
             add_log("resuming from step " + std::to_string(at.step));
         } else {
