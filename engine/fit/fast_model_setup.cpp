@@ -198,10 +198,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
         auto g = torch::meshgrid({ys, xs}, "ij");
         pixels = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({h * w})}, 1);
     }
-    auto shrink = [&](const torch::Tensor& x) {  // [C,H,W] → [C,h,w], block means
-        if (k == 1) return x;
-        return torch::avg_pool2d(x.narrow(1, 0, h * k).narrow(2, 0, w * k).unsqueeze(0), k)[0];
-    };
+    auto shrink = [&](const torch::Tensor& x) { return shrink_by(x, k); };  // [C,h,w]
     // On a proxy the background's atlas is fused from the proxy frames too (fuse_on_proxy): the
     // render reads nothing finer, and the fusion costs k² less; 1280×720×60: the corners
     // land within 0.03 px (median) of the full-size fusion's. The subject's atlas is small (its
