@@ -34,7 +34,9 @@ double within(double measured, double truth) {
 }  // namespace
 
 TEST_CASE("noise estimate: known noise on synth frames, 8-bit") {
-    for (const char* scene : {"rack", "pan"}) {
+    // tripod sweeps its focus over finely textured walls: its sharp frames alone read several
+    // levels with no noise added.
+    for (const char* scene : {"rack", "pan", "tripod"}) {
         SynthOptions o;
         o.scene = scene;
         o.frames = 12;
@@ -49,6 +51,7 @@ TEST_CASE("noise estimate: known noise on synth frames, 8-bit") {
             const NoiseEstimate e = combine_frame_noise(per);
             INFO(scene << " sigma " << sigma << ": " << e.describe());
             REQUIRE(e.measured());
+            MESSAGE(scene << " sigma " << sigma << ": " << e.describe());
             for (int c = 0; c < 3; ++c) CHECK(within(e.sigma[c], sigma) >= 0);
         }
     }

@@ -9,7 +9,8 @@
 // texture and edges do not count; cells that touch a clipped value are left out; cells align
 // with H.264's 4x4/8x8 blocks, whose edges fall between cells. σ is a trimmed mean of |HH|
 // (lowest 95 %, scaled for a Gaussian), the sources' rounding (1/12 level² for 8-bit) taken
-// out, and the median over up to 9 frames spread over the clip.
+// out, and the least over up to 9 frames spread over the clip (texture in focus reads as noise;
+// the sensor's noise is every frame's floor).
 #include <nlohmann/json.hpp>
 
 #include <array>
@@ -41,7 +42,7 @@ std::array<double, 3> frame_noise_levels(const Image& linear, double rounding_va
 // The quantisation variance of a source format ("uint8", "uint16", "half", "float").
 double source_rounding_var(const std::string& source_format);
 
-// The median over frames of frame_noise_levels (frames with no estimate left out).
+// The least over frames of frame_noise_levels (frames with no estimate left out).
 NoiseEstimate combine_frame_noise(const std::vector<std::array<double, 3>>& per_frame);
 
 // Which frames to measure in a clip of `frames`: up to 9, spread evenly.
