@@ -7,7 +7,8 @@ The spec (JSON, written by make_corpus.py) names the clip and fixes its seed, sp
 move, subject action, focus behaviour and whether make_corpus.py passes it through H.264; lens,
 layout, materials, lights, motion amplitudes and noise are drawn from the seed. Each frame is
 rendered twice: without depth of field (sharp_, with the Z and object-index passes) and with it
-(input_, then gaussian sensor noise). Frames already finished in DIR are kept (resume).
+(input_, then gaussian sensor noise). Frames already finished in DIR are kept (resume). A spec
+with "renderer": "defocus" renders the clean tier instead (scene_defocus.py, clean_tier.py).
 """
 
 import argparse
@@ -26,6 +27,7 @@ from mathutils import Euler, Matrix, Vector
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import corpus_io  # noqa: E402
 import scene_build as sb  # noqa: E402
+import scene_defocus  # noqa: E402
 
 FPS = 24
 CAMERAS = ("locked", "pan", "dolly_in", "dolly_out", "orbit", "handheld")
@@ -578,7 +580,13 @@ def main():
     focus, finfo = focus_plan(s, spec["focus"], z_s, z_near, z_bg)
     cam_obj = setup_render(s, spec, os.path.join(out, ".work"))
     t0 = time.time()
-    secs = render_frames(s, spec, out, cam_obj, path, rig, cams, focus)
+    if spec.get("renderer") == "defocus":  # the clean tier: sharp render + compositor Defocus
+        secs = scene_defocus.render_frames(s, spec, out, cam_obj, cams, focus,
+                                           lambda t: rig and pose_subject(s, path, rig, t))
+        if secs is None:  # a render-noise check: those frames only
+            return
+    else:
+        secs = render_frames(s, spec, out, cam_obj, path, rig, cams, focus)
     stats, subj_stats = clip_stats(s, out)
     info = {"focus_distance_m": [round(z, 5) for z in focus],
             "focus_plan": finfo, "hero_depth_m": [round(z, 5) for z in z_s],
@@ -589,8 +597,11 @@ def main():
             "camera_world_meaning": "per frame, the camera's 4x4 world matrix, row-major "
                                     "(Blender: Z up, the camera looks down its local -Z)",
             "layout": layout, "render_seconds_per_frame": render_seconds(out, secs)}
+    j = clip_json(s, spec, info)
+    if spec.get("renderer") == "defocus":
+        scene_defocus.describe(j, s, spec)
     corpus_io._atomic_write(os.path.join(out, "clip.json"),
-                            (json.dumps(clip_json(s, spec, info), indent=2) + "\n").encode())
+                            (json.dumps(j, indent=2) + "\n").encode())
     print("scene.py: %s done in %.0f s; blur radius px median %.2f p90 %.2f max %.2f" %
           (spec["name"], time.time() - t0, stats["median"], stats["p90"], stats["max"]),
           flush=True)
