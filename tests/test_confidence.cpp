@@ -164,6 +164,43 @@ TEST_CASE(
           doctest::Approx(0.0));  // off
 }
 
+TEST_CASE("a layer's focus travel: a gentle rack counts as moved, the estimate's noise does not") {
+    // A rack from 0.2 to 2.8 px over 8 frames on a wall of 40x30, plus ±1 px of noise that
+    // changes from frame to frame: each pixel's own range mixes both, the frames' medians not.
+    const int T = 8, H = 30, W = 40;
+    torch::manual_seed(3);
+    std::vector<torch::Tensor> rack, still;
+    for (int s = 0; s < T; ++s) {
+        auto noise = torch::rand({H, W}, torch::kFloat32) * 2.0 - 1.0;
+        rack.push_back((0.2 + 2.6 * s / (T - 1.0) + noise).clamp_min(0));
+        still.push_back((2.5 + noise).clamp_min(0));
+    }
+    const double moving = focus_travel(T, [&](int s) { return rack[s]; }, nullptr);
+    const double fixed = focus_travel(T, [&](int s) { return still[s]; }, nullptr);
+    CHECK(moving == doctest::Approx(2.6).epsilon(0.1));
+    CHECK(fixed < 0.3);
+    // A region that covers under 1 % of a frame does not count; one that does, does.
+    auto region = [&](int s) {
+        auto m = torch::zeros({H, W});
+        if (s % 2) m.narrow(0, 0, 15).fill_(1);
+        return m;
+    };
+    CHECK(focus_travel(T, [&](int s) { return rack[s]; }, region) ==
+          doctest::Approx(2.6 * 6 / 7).epsilon(0.15));  // odd frames only: 1 to 7
+
+    // The range 1.4 px (half the rack's travel) reads as a full move of 4 px, the same range on
+    // the still wall stays 1.4; a long rack keeps the absolute test; off leaves it.
+    auto range = torch::full({1, 1, 4, 4}, 1.4);
+    CHECK(px_at(range_by_travel(range, moving, 4.0, 2.0), 1, 1) == doctest::Approx(4.3).epsilon(0.1));
+    CHECK(px_at(range_by_travel(range, fixed, 4.0, 2.0), 1, 1) == doctest::Approx(1.4));
+    CHECK(px_at(range_by_travel(range, 9.0, 4.0, 2.0), 1, 1) == doctest::Approx(1.4));
+    CHECK(px_at(range_by_travel(range, moving, 4.0, 0.0), 1, 1) == doctest::Approx(1.4));
+    // Between 1.5 and 2 px of travel the threshold eases from 4 px to half the travel.
+    const double mid = px_at(range_by_travel(range, 1.75, 4.0, 2.0), 1, 1);
+    CHECK(mid > 1.4);
+    CHECK(mid < 1.4 * 4.0 / 0.875);
+}
+
 TEST_CASE("the unexplained share: a region far above the frame's typical residual") {
     const int H = 48, W = 48;
     auto e = torch::full({1, 1, H, W}, 0.01);

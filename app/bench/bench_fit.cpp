@@ -39,12 +39,41 @@ std::vector<double> parse_times(const std::string& s) {
     return v;
 }
 
+// --score <project>: no fit; the fitted project's sharp output, as `refocus export` writes it
+// at the project's settings now, scored against the clip's truth. Re-scores a checkpoint after a
+// change to the output rules, which act at export and not on the fit.
+int score_fitted(const fs::path& clip, const fs::path& dir) {
+    Project project = Project::load(dir);
+    PrepareLog log([](const std::string& l) { std::fprintf(stderr, "  %s\n", l.c_str()); });
+    auto engine = open_fitted(project, log);
+    std::vector<Image> gt = read_all_frames((clip / "sharp_%04d.png").string());
+    if (int(gt.size()) < project.frames)
+        throw Error(file_error((clip / "sharp_%04d.png").string(),
+                               "holds " + std::to_string(gt.size()) + " frames, the project " +
+                                   std::to_string(project.frames)));
+    gt.resize(project.frames);
+    std::vector<Image> input;
+    for (int t = 0; t < project.frames; ++t) input.push_back(project.read_frame(t));
+    EvalFrames last;
+    const EvalRow r = evaluate(*engine, gt, input, &last);
+    std::printf("project %s against %s (%d frames), step %lld\n", dir.string().c_str(),
+                clip.string().c_str(), project.frames, (long long)r.step);
+    std::printf("input vs ground truth: PSNR %.2f dB  SSIM %.4f  tPSNR %.2f dB\n", r.in_psnr,
+                r.in_ssim, r.in_tpsnr);
+    std::printf("sharp output:          PSNR %.2f dB  SSIM %.4f  tPSNR %.2f dB  reblur PSNR %.2f\n",
+                r.psnr, r.ssim, r.tpsnr, r.reblur_psnr);
+    std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - r.in_psnr,
+                r.tpsnr - r.in_tpsnr);
+    if (!last.sharp.empty()) print_bands(last);
+    return 0;
+}
+
 }  // namespace
 
 int bench_fit(int argc, char** argv) {
     Args a(argc, argv, 3, {"oracle-coc", "oracle-mask"});
     a.check_known({"clip", "preset", "minutes", "iters", "oracle-coc", "coc", "oracle-mask", "mask",
-                   "at", "csv", "work", "seed", "batch", "set"});
+                   "at", "csv", "work", "seed", "batch", "set", "score"});
     if (!a.has("clip"))
         throw Error(
             "usage: refocus bench fit --clip <synth-dir> --preset " + preset_names() +
@@ -54,6 +83,7 @@ int bench_fit(int argc, char** argv) {
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
+    if (a.has("score")) return score_fitted(clip, a.get("score"));
     const std::string preset = a.get("preset", "fast");
     const double minutes = a.get_double("minutes", 10.0);
     const bool oracle = a.has("oracle-coc");

@@ -197,7 +197,9 @@ const Bench kBenches[] = {
      "             [--oracle-mask | --mask <pattern>] [--at 0.5,1,2,5,10] [--csv out.csv] [--batch "
      "N]\n"
      "             [--seed S] [--work <dir>] [--set name=value]...\n"
-     "             run time against error: sharp PSNR/SSIM/tPSNR vs ground truth, reblur PSNR"},
+     "             run time against error: sharp PSNR/SSIM/tPSNR vs ground truth, reblur PSNR\n"
+     "       fit --clip <synth-dir> --score <project>\n"
+     "             no fit: a fitted project's sharp output at its settings, scored the same way"},
     {"corpus", bench_corpus,
      "corpus <dir> [--split dev|val|all] [--preset P] [--minutes M | --iters N] [--oracle-coc]\n"
      "             [--csv FILE] [--seed S] [--batch N] [--set name=value]...\n"

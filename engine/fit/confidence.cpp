@@ -178,6 +178,34 @@ torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& shar
     return feather(smoothstep01((reach - sharpest.view_as(reach) - gain) / gain), 4);
 }
 
+double focus_travel(int frames, const std::function<torch::Tensor(int)>& radius_of,
+                    const std::function<torch::Tensor(int)>& region_of) {
+    torch::NoGradGuard g;
+    double lo = 1e30, hi = -1e30;
+    for (int s = 0; s < frames; ++s) {
+        auto r = radius_of(s).to(torch::kFloat32).reshape({-1});
+        if (auto m = region_of ? region_of(s) : torch::Tensor(); m.defined()) {
+            auto in = m.reshape({-1}) >= 0.5;
+            if (in.sum().item<int64_t>() < std::max<int64_t>(1, r.numel() / 100)) continue;
+            r = r.masked_select(in);
+        }
+        const double med = r.median().item<double>();
+        lo = std::min(lo, med), hi = std::max(hi, med);
+    }
+    return hi >= lo ? hi - lo : 0.0;
+}
+
+torch::Tensor range_by_travel(const torch::Tensor& range, double travel, double moved_px,
+                              double travel_px) {
+    torch::NoGradGuard g;
+    if (!range.defined() || !(travel_px > 0) || !(moved_px > 0)) return range;
+    const double u = std::clamp((travel - 0.75 * travel_px) / (0.25 * travel_px), 0.0, 1.0);
+    const double s = u * u * (3 - 2 * u);
+    // Half the travel, never above moved_px itself: a long rack keeps the absolute test.
+    const double moved_eff = (1 - s) * moved_px + s * std::min(moved_px, 0.5 * travel);
+    return moved_eff < moved_px ? range * (moved_px / moved_eff) : range;
+}
+
 torch::Tensor gaussian_blur(const torch::Tensor& x, double sigma) {
     const int r = std::max(1, int(std::ceil(3 * sigma)));
     auto k = torch::arange(-r, r + 1, x.options());

@@ -90,6 +90,20 @@ torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& shar
                            const torch::Tensor& range, double gain_px, double moved_gain_px,
                            double moved_px);
 
+// How far a layer's focus moved over the clip as a whole: the range over frames of the median
+// radius of `radius_of(s)` ([H,W] px) over the pixels `region_of(s)` ([H,W], ≥ 0.5) holds
+// (every pixel when undefined); frames where the region covers under 1 % of the frame are left
+// out. A pixel's own range is the estimate's noise too; a layer's median over a whole frame is not.
+double focus_travel(int frames, const std::function<torch::Tensor(int)>& radius_of,
+                    const std::function<torch::Tensor(int)>& region_of);
+
+// The focus range (most − least of seen_radius, [1,1,H,W] px) rescaled for the sharper-view rule
+// where the layer's focus travelled (focus_travel): from `travel_px` on, a point passed over by
+// half the layer's travel counts as moved (sharper_view's moved_px), however small the travel;
+// under 0.75·travel_px the range is left as it is (smoothstep between). 0 travel_px: unchanged.
+torch::Tensor range_by_travel(const torch::Tensor& range, double travel, double moved_px,
+                              double travel_px);
+
 // Separable Gaussian of standard deviation sigma px (support ±3σ, edges replicated), [N,C,H,W].
 torch::Tensor gaussian_blur(const torch::Tensor& x, double sigma);
 

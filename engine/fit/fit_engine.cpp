@@ -566,6 +566,7 @@ torch::Tensor FitEngine::sharpest_seen_map(int t) const {
         } else if (range) {
             m_seen_range[i] = visible.most - visible.least;
         }
+        if (range && m_travel.empty()) m_travel = layer_travel(layered);
     }
     return best;
 }
@@ -600,11 +601,25 @@ torch::Tensor FitEngine::focus_range_map(int t) const {
         std::lock_guard<std::mutex> lock(m_unexplained_mutex);
         r = m_seen_range[m_data->static_camera ? 0 : t];
     }
-    if (r.dim() == 4) return r;  // one layer: the visible surface's
+    const double moved = m_opts.focus_moved_px, travel = m_opts.focus_travel_px;
+    if (r.dim() == 4)  // one layer: the visible surface's
+        return range_by_travel(r, m_travel.empty() ? 0.0 : m_travel[0], moved, travel);
     // Two layers: each layer's range where it is seen, by frame t's mask.
     torch::NoGradGuard g;
     auto a = m_data->mask[t].view({1, 1, m_data->height, m_data->width}).to(torch::kFloat32);
-    return a * r[0] + (1.0 - a) * r[1];
+    const bool known = m_travel.size() == 2;
+    return a * range_by_travel(r[0], known ? m_travel[0] : 0.0, moved, travel) +
+           (1.0 - a) * range_by_travel(r[1], known ? m_travel[1] : 0.0, moved, travel);
+}
+
+std::vector<double> FitEngine::layer_travel(bool layered) const {
+    const int T = m_data->frames;
+    if (!layered)
+        return {focus_travel(T, [&](int s) { return m_data->radius[s]; }, nullptr)};
+    auto mask = [&](int s) { return m_data->mask[s][0].to(torch::kFloat32); };
+    auto unmasked = [&](int s) { return 1.0 - mask(s); };
+    return {focus_travel(T, [&](int s) { return m_data->radius_fg[s]; }, mask),
+            focus_travel(T, [&](int s) { return m_data->radius_bg[s]; }, unmasked)};
 }
 
 torch::Tensor FitEngine::seen_trust_map(int t) const {

@@ -54,7 +54,7 @@ struct FitOptions {
     // what the model changes over its own reblur, plus `fallback_floor` (sRGB). 0: the median
     // rule (fallback_k, fallback_min).
     double fallback_change = 0.35;
-    double fallback_floor = 0.004;
+    double fallback_floor = 0.008;
     // Nothing to fix: where no blur of at least this radius (px) reaches a pixel, the output is
     // the shot (0: off).
     double keep_focus_px = 0.5;
@@ -78,6 +78,10 @@ struct FitOptions {
     // off; chosen on the synth, real-texture and rendered dev clips, docs/benchmarks.md).
     double focus_moved_px = 4.0;
     double sharper_view_moved_px = 0.5;
+    // Where a layer's focus moved as a whole by at least this (px: the range over frames of the
+    // layer's median radius; confidence.h, focus_travel), a point passed over by half that
+    // travel counts as moved, so a gentle rack (2-4 px) is read as one (0: off).
+    double focus_travel_px = 2.0;
     // Two layers: each layer blurred with its own radius (split_radius_by_layer, stack_coc.h)
     // instead of the visible surface's map for both (docs/method.md, Layered reblur).
     bool layer_radius = true;
@@ -174,6 +178,8 @@ class FitEngine {
     // How far focus moved over frame t's pixels: the largest radius any frame saw them at less
     // the least (confidence.h, seen_radius), cached; undefined unless fit.focus_moved_px is on.
     torch::Tensor focus_range_map(int t) const;
+    // Each layer's focus_travel (one value for one layer; fg, bg for two).
+    std::vector<double> layer_travel(bool layered) const;
     // What the model changes over its own reblur in frame t: |C − Î| in sRGB, the mean over the
     // channels, over 5×5 px (as the running residual is read). [1,1,H,W]; renders the frame.
     torch::Tensor model_change(int t) const;
@@ -245,6 +251,7 @@ class FitEngine {
     mutable std::deque<ChangeMap> m_change;
     mutable std::vector<torch::Tensor> m_seen;  // sharpest_seen_map's cache, under the mutex below
     mutable std::vector<torch::Tensor> m_seen_range;  // focus_range_map's, filled beside it
+    mutable std::vector<double> m_travel;  // each layer's focus_travel (fg, bg), filled beside it
     mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;  // whether steps take crops (FitOptions::crop_px, and the model

@@ -71,6 +71,9 @@ const std::vector<Field<FitOptions>>& fit_fields() {
          "least), the sharper-view threshold is fit.sharper_view_moved_px (0: off)"},
         {"fit.sharper_view_moved_px", &O::sharper_view_moved_px, 0, 64,
          "the sharper-view threshold (px) where focus moved over the point"},
+        {"fit.focus_travel_px", &O::focus_travel_px, 0, 64,
+         "where a layer's focus moved as a whole by at least this (px: the range of its median "
+         "radius over frames), a point passed over by half that travel counts as moved (0: off)"},
         {"fit.keep_focus_px", &O::keep_focus_px, 0, 8,
          "where no blur of at least this radius (px) reaches a pixel, the output is the shot "
          "(0: off)"},
