@@ -175,8 +175,10 @@ TEST_CASE("a layer's focus travel: a gentle rack counts as moved, the estimate's
         rack.push_back((0.2 + 2.6 * s / (T - 1.0) + noise).clamp_min(0));
         still.push_back((2.5 + noise).clamp_min(0));
     }
-    const double moving = focus_travel(T, [&](int s) { return rack[s]; }, nullptr);
-    const double fixed = focus_travel(T, [&](int s) { return still[s]; }, nullptr);
+    const double moving = focus_travel(
+        T, [&](int s) { return rack[s]; }, nullptr);
+    const double fixed = focus_travel(
+        T, [&](int s) { return still[s]; }, nullptr);
     CHECK(moving == doctest::Approx(2.6).epsilon(0.1));
     CHECK(fixed < 0.3);
     // A region that covers under 1 % of a frame does not count; one that does, does.
@@ -185,13 +187,15 @@ TEST_CASE("a layer's focus travel: a gentle rack counts as moved, the estimate's
         if (s % 2) m.narrow(0, 0, 15).fill_(1);
         return m;
     };
-    CHECK(focus_travel(T, [&](int s) { return rack[s]; }, region) ==
+    CHECK(focus_travel(
+              T, [&](int s) { return rack[s]; }, region) ==
           doctest::Approx(2.6 * 6 / 7).epsilon(0.15));  // odd frames only: 1 to 7
 
     // The range 1.4 px (half the rack's travel) reads as a full move of 4 px, the same range on
     // the still wall stays 1.4; a long rack keeps the absolute test; off leaves it.
     auto range = torch::full({1, 1, 4, 4}, 1.4);
-    CHECK(px_at(range_by_travel(range, moving, 4.0, 2.0), 1, 1) == doctest::Approx(4.3).epsilon(0.1));
+    CHECK(px_at(range_by_travel(range, moving, 4.0, 2.0), 1, 1) ==
+          doctest::Approx(4.3).epsilon(0.1));
     CHECK(px_at(range_by_travel(range, fixed, 4.0, 2.0), 1, 1) == doctest::Approx(1.4));
     CHECK(px_at(range_by_travel(range, 9.0, 4.0, 2.0), 1, 1) == doctest::Approx(1.4));
     CHECK(px_at(range_by_travel(range, moving, 4.0, 0.0), 1, 1) == doctest::Approx(1.4));

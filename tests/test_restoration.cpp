@@ -118,9 +118,9 @@ TEST_CASE("the defaults keep a right model's gain on clean footage, and the shot
     CHECK(std::abs(noisy_sigma - 4.0) < 0.8);
     CHECK(clean_sigma < 1.0);
     // Where the model is right (the clip's lens is the model's pillbox), the rules give away no
-    // more than 0.5 dB of the model's own gain: the focus moves 0.2 -> 3 px, under fit.focus_moved_px
-    // everywhere, and the layer's travel (fit.focus_travel_px) says the small sharper views are
-    // real (without it the plate kept 2.2 of the model's 4.5 dB).
+    // more than 0.5 dB of the model's own gain: the focus moves 0.2 -> 3 px, under
+    // fit.focus_moved_px everywhere, and the layer's travel (fit.focus_travel_px) says the small
+    // sharper views are real (without it the plate kept 2.2 of the model's 4.5 dB).
     CHECK(clean.plate > clean.input + 3.0);
     CHECK(clean.plate > clean.model - 0.5);
     // Under noise the plate is never worse than the shot, in the mean or in any frame.

@@ -615,11 +615,14 @@ torch::Tensor FitEngine::focus_range_map(int t) const {
 std::vector<double> FitEngine::layer_travel(bool layered) const {
     const int T = m_data->frames;
     if (!layered)
-        return {focus_travel(T, [&](int s) { return m_data->radius[s]; }, nullptr)};
+        return {focus_travel(
+            T, [&](int s) { return m_data->radius[s]; }, nullptr)};
     auto mask = [&](int s) { return m_data->mask[s][0].to(torch::kFloat32); };
     auto unmasked = [&](int s) { return 1.0 - mask(s); };
-    return {focus_travel(T, [&](int s) { return m_data->radius_fg[s]; }, mask),
-            focus_travel(T, [&](int s) { return m_data->radius_bg[s]; }, unmasked)};
+    return {focus_travel(
+                T, [&](int s) { return m_data->radius_fg[s]; }, mask),
+            focus_travel(
+                T, [&](int s) { return m_data->radius_bg[s]; }, unmasked)};
 }
 
 torch::Tensor FitEngine::seen_trust_map(int t) const {
