@@ -94,6 +94,7 @@ torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& shar
 // radius of `radius_of(s)` ([H,W] px) over the pixels `region_of(s)` ([H,W], ≥ 0.5) holds
 // (every pixel when undefined); frames where the region covers under 1 % of the frame are left
 // out. A pixel's own range is the estimate's noise too; a layer's median over a whole frame is not.
+// Frames over ~65 000 px are read on a grid (a median needs no more).
 double focus_travel(int frames, const std::function<torch::Tensor(int)>& radius_of,
                     const std::function<torch::Tensor(int)>& region_of);
 
