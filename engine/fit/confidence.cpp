@@ -190,9 +190,9 @@ double focus_travel(int frames, const std::function<torch::Tensor(int)>& radius_
         return step > 1 ? x.slice(-2, 0, x.size(-2), step).slice(-1, 0, x.size(-1), step) : x;
     };
     for (int s = 0; s < frames; ++s) {
-        auto r = grid(radius_of(s).to(torch::kFloat32)).reshape({-1});
+        auto r = grid(radius_of(s)).to(torch::kFloat32).reshape({-1});
         if (auto m = region_of ? region_of(s) : torch::Tensor(); m.defined()) {
-            auto in = grid(m).reshape({-1}) >= 0.5;
+            auto in = grid(m).to(torch::kFloat32).reshape({-1}) >= 0.5;
             if (in.sum().item<int64_t>() < std::max<int64_t>(1, r.numel() / 100)) continue;
             r = r.masked_select(in);
         }

@@ -617,8 +617,8 @@ std::vector<double> FitEngine::layer_travel(bool layered) const {
     if (!layered)
         return {focus_travel(
             T, [&](int s) { return m_data->radius[s]; }, nullptr)};
-    auto mask = [&](int s) { return m_data->mask[s][0].to(torch::kFloat32); };
-    auto unmasked = [&](int s) { return 1.0 - mask(s); };
+    auto mask = [&](int s) { return m_data->mask[s][0]; };  // focus_travel reads it on its grid
+    auto unmasked = [&](int s) { return 1.0 - m_data->mask[s][0].to(torch::kFloat32); };
     return {focus_travel(
                 T, [&](int s) { return m_data->radius_fg[s]; }, mask),
             focus_travel(
