@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "fit/confidence.h"
+#include "fit/fit_engine.h"
 #include "io/clip.h"
 #include "io/image_file.h"
 #include "metrics/metrics.h"
@@ -100,6 +101,57 @@ TEST_CASE("the sharpest the clip saw a pixel, and how far that lets the model re
     // With a stride the spread still reaches every part of the clip.
     CHECK(px_at(sharpest_seen(0, T, 2, still, true, 30.0, radius_of), 6, 2) ==
           doctest::Approx(0.5));
+}
+
+TEST_CASE("two layers: a sharp subject passing over a blurred wall is no sharp view of the wall") {
+    // A locked-off shot of a subject walking across a wall blurred 6 px in every frame; the
+    // subject is sharp in frames 0-2 and blurred 5 px from frame 3 on. The visible surface is
+    // sharp wherever the subject has been in its first frames, the wall never.
+    const int64_t T = 6, H = 36, W = 64, S = 12;
+    auto d = std::make_shared<FitData>();
+    d->frames = T, d->height = H, d->width = W;
+    torch::manual_seed(1);
+    d->input = torch::rand({T, 3, H, W});
+    d->to_ref = torch::eye(3, torch::kFloat64).expand({T, 3, 3}).clone();
+    d->static_camera = true;
+    d->has_subject = true;
+    d->mask = torch::zeros({T, 1, H, W});
+    d->radius = torch::full({T, H, W}, 6.0f);
+    auto x_of = [&](int64_t t) { return 4 + 9 * t; };  // the subject's left edge in frame t
+    auto subject_r = [](int64_t t) { return t < 3 ? 0.3f : 5.0f; };
+    for (int64_t t = 0; t < T; ++t) {
+        d->mask[t].narrow(1, 12, S).narrow(2, x_of(t), S).fill_(1.0f);
+        d->radius[t].narrow(0, 12, S).narrow(1, x_of(t), S).fill_(subject_r(t));
+    }
+    FitOptions o;
+    o.preset = "fast";
+    o.iters = 1;
+    FitEngine e(d, o);  // splits the radius by layer (split_radius_by_layer)
+    const int64_t last = T - 1, y = 12 + S / 2;
+    auto best = e.sharpest_seen_map(last);
+    auto tau = e.seen_trust_map(last);
+    auto w = e.model_weight(last);
+    REQUIRE(best.defined());
+    REQUIRE(tau.defined());
+    REQUIRE(w.defined());
+    // Frame 0's subject stood at columns 4..15: the wall there was never seen sharp, and the
+    // plate keeps the shot.
+    CHECK(px_at(best, y, 9) > 5.0);
+    CHECK(px_at(tau, y, 9) < 0.05);
+    CHECK(px_at(w, y, 9) < 0.05);
+    // The subject, blurred now, was seen sharp in its first frames (along its own track, not
+    // at these pixels): the model carries that view here.
+    const int64_t at = x_of(last) + S / 2;
+    CHECK(px_at(best, y, at) < 1.0);
+    CHECK(px_at(tau, y, at) > 0.95);
+    CHECK(px_at(w, y, at) > 0.95);
+    // Far from any of its positions the wall reads its own 6 px.
+    CHECK(px_at(best, 2, 60) == doctest::Approx(6.0).epsilon(0.01));
+    // Frame 1: the subject is sharp in front of the blurred wall. The wall's blur does not
+    // spill over a subject in front of it: the shot is its best view, and is kept.
+    auto w1 = e.model_weight(1);
+    const double at1 = px_at(w1.defined() ? w1 : torch::ones({1, 1, H, W}), y, x_of(1) + S / 2);
+    CHECK(at1 < 0.05);
 }
 
 TEST_CASE("a sharper view: the model replaces a pixel only where another frame saw it sharper") {

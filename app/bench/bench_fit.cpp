@@ -64,6 +64,23 @@ int score_fitted(const fs::path& clip, const fs::path& dir) {
                 r.psnr, r.ssim, r.tpsnr, r.reblur_psnr);
     std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - r.in_psnr,
                 r.tpsnr - r.in_tpsnr);
+    if (!last.model.empty() && last.model.size() == last.sharp.size()) {
+        // What the rules keep of the model (bench corpus's yardstick): the plate alone, the
+        // oracle blend, the worst frame and the share of the oracle's gain the output captures.
+        double model = 0, oracle = 0, worst = 1e9;
+        const double n = double(last.model.size());
+        for (size_t i = 0; i < last.model.size(); ++i) {
+            const double in = psnr(last.input[i], last.gt[i]);
+            model += psnr(last.model[i], last.gt[i]) / n;
+            oracle += oracle_blend_psnr(last.model[i], last.input[i], last.gt[i]) / n;
+            worst = std::min(worst, psnr(last.sharp[i], last.gt[i]) - in);
+        }
+        const double gain = r.psnr - r.in_psnr, og = oracle - r.in_psnr;
+        std::printf("model alone %+.2f dB, oracle blend %+.2f dB, worst frame %+.2f dB",
+                    model - r.in_psnr, og, worst);
+        if (og >= 0.5) std::printf(", captured %.0f %%", 100.0 * gain / og);
+        std::printf("\n");
+    }
     if (!last.sharp.empty()) print_bands(last);
     return 0;
 }

@@ -180,6 +180,12 @@ torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& shar
 
 double focus_travel(int frames, const std::function<torch::Tensor(int)>& radius_of,
                     const std::function<torch::Tensor(int)>& region_of) {
+    const auto span = focus_span(frames, radius_of, region_of);
+    return span.seen ? span.most - span.least : 0.0;
+}
+
+FocusSpan focus_span(int frames, const std::function<torch::Tensor(int)>& radius_of,
+                     const std::function<torch::Tensor(int)>& region_of) {
     torch::NoGradGuard g;
     double lo = 1e30, hi = -1e30;
     // A median needs no more than ~65 000 samples: larger frames are read on a grid (1080p
@@ -199,7 +205,8 @@ double focus_travel(int frames, const std::function<torch::Tensor(int)>& radius_
         const double med = r.median().item<double>();
         lo = std::min(lo, med), hi = std::max(hi, med);
     }
-    return hi >= lo ? hi - lo : 0.0;
+    if (!(hi >= lo)) return {};
+    return {lo, hi, true};
 }
 
 torch::Tensor range_by_travel(const torch::Tensor& range, double travel, double moved_px,

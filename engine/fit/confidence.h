@@ -98,6 +98,15 @@ torch::Tensor sharper_view(const torch::Tensor& reach, const torch::Tensor& shar
 double focus_travel(int frames, const std::function<torch::Tensor(int)>& radius_of,
                     const std::function<torch::Tensor(int)>& region_of);
 
+// The least and the most of those per-frame medians (focus_travel is their difference); `seen`
+// is false when no frame's region reached 1 %.
+struct FocusSpan {
+    double least = 0, most = 0;
+    bool seen = false;
+};
+FocusSpan focus_span(int frames, const std::function<torch::Tensor(int)>& radius_of,
+                     const std::function<torch::Tensor(int)>& region_of);
+
 // The focus range (most − least of seen_radius, [1,1,H,W] px) rescaled for the sharper-view rule
 // where the layer's focus travelled (focus_travel): from `travel_px` on, a point passed over by
 // half the layer's travel counts as moved (sharper_view's moved_px), however small the travel;

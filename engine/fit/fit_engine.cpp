@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <cstdio>
 #include <filesystem>
 
@@ -27,6 +28,57 @@ namespace F = torch::nn::functional;
 using Clock = std::chrono::steady_clock;
 
 namespace {
+// The subject's radius in frame t: the median of its own map over its mask (on a grid of at
+// most ~65 000 px, as focus_span reads it); NaN where the mask covers under 1 % of the frame.
+// The output rules read the subject as a whole: a subject is at one depth, and its per-pixel
+// estimate spreads by pixels where its median does not.
+double subject_radius(const FitData& d, int t) {
+    torch::NoGradGuard g;
+    const int64_t step =
+        std::max<int64_t>(1, int64_t(std::sqrt(double(d.height * d.width) / 65536.0)));
+    auto grid = [&](const torch::Tensor& x) {
+        return x.slice(-2, 0, d.height, step).slice(-1, 0, d.width, step);
+    };
+    auto r = grid(d.radius_fg[t]).to(torch::kFloat32).reshape({-1});
+    auto in = grid(d.mask[t][0]).to(torch::kFloat32).reshape({-1}) >= 0.5;
+    if (in.sum().item<int64_t>() < std::max<int64_t>(1, r.numel() / 100))
+        return std::numeric_limits<double>::quiet_NaN();
+    return r.masked_select(in).median().item<double>();
+}
+
+// Where frame t shows the subject, for the output rules: its mask where the radius there is
+// the subject's (within a quarter of subject_radius or 1 px, smoothstep to twice that). An
+// automatic mask that caught a piece of the wall (a blob beside the subject, a corner of the
+// floor) reads the wall's radius there, and the rules treat it as wall. Undefined with one
+// layer; `radius` (if given) receives subject_radius.
+torch::Tensor subject_share(const FitData& d, int t, double* radius = nullptr) {
+    if (!d.radius_fg.defined() || !d.radius_bg.defined() || !d.mask.defined()) return {};
+    torch::NoGradGuard g;
+    auto a = d.mask[t].view({1, 1, d.height, d.width}).to(torch::kFloat32);
+    const double own = subject_radius(d, t);
+    if (radius) *radius = own;
+    if (!std::isfinite(own)) return a;
+    const double tol = std::max(1.0, 0.25 * own);
+    auto r = d.radius[t].view({1, 1, d.height, d.width}).to(torch::kFloat32);
+    auto off = (((r - own).abs() - tol) / tol).clamp(0, 1);
+    return a * (1.0 - off * off * (3 - 2 * off));
+}
+
+// ν and γ's reach of frame t's blur (confidence.h, blur_reach). With two layers the subject is
+// in front (paper eq. 3, layered): its blur spills over the wall, the wall's never over it, so
+// where frame t shows the subject (subject_share) the reach is the subject's own radius. A
+// sharp subject in front of a blurred wall is the shot's best view of itself, not blur to fix.
+torch::Tensor layered_reach(const FitData& d, int t) {
+    double own = 0;
+    auto a = subject_share(d, t, &own);
+    if (!a.defined()) return blur_reach(d.radius[t]);
+    torch::NoGradGuard g;
+    if (!std::isfinite(own)) own = 0;
+    auto fg = blur_reach(own * (a > 0.5).to(torch::kFloat32));
+    auto bg = blur_reach(d.radius_bg[t]);
+    return a * fg + (1.0 - a) * torch::maximum(bg, fg);
+}
+
 // What a diverged fit leaves and what to do.
 const char* const kDivergedAdvice =
     "; the fit stopped and the last checkpoint (fit/checkpoint.json) is kept: check the input for "
@@ -545,6 +597,12 @@ torch::Tensor FitEngine::sharpest_seen_map(int t) const {
     if (!still)
         for (int s = 0; s < int(m_seen.size()); ++s)
             if (std::abs(s - t) > 2) m_seen[s] = m_seen_range[s] = torch::Tensor();
+    // With two layers each layer is read on its own radius (split_radius_by_layer): a subject
+    // crossing the wall changes the visible surface's radius, not the focus on the wall, and a
+    // sharp subject passing in front of a blurred wall is no sharp view of the wall.
+    const bool layered =
+        m_data->radius_fg.defined() && m_data->radius_bg.defined() && m_data->mask.defined();
+    const bool range = m_opts.focus_moved_px > 0;
     auto& best = m_seen[i];
     if (!best.defined()) {
         // Where a frame did not see the pixel it reads past any trust: it lowers no minimum.
@@ -554,21 +612,22 @@ torch::Tensor FitEngine::sharpest_seen_map(int t) const {
                 i, m_data->frames, still ? m_data->frames : 32, m_data->to_ref, still, unseen,
                 [&](int s) { return maps[s]; }, most);
         };
-        const bool range = m_opts.focus_moved_px > 0;
-        // With two layers each layer's range is its own radius's (split_radius_by_layer): a
-        // subject crossing the wall changes the visible surface's radius, not the focus on it.
-        const bool layered = range && m_data->radius_fg.defined() && m_data->radius_bg.defined();
-        auto visible = seen(m_data->radius, range && !layered);
-        best = visible.least;
         if (layered) {
-            auto fg = seen(m_data->radius_fg, true), bg = seen(m_data->radius_bg, true);
-            m_seen_range[i] = torch::stack({fg.most - fg.least, bg.most - bg.least});
-        } else if (range) {
-            m_seen_range[i] = visible.most - visible.least;
+            auto bg = seen(m_data->radius_bg, range);
+            best = bg.least;
+            if (range) m_seen_range[i] = bg.most - bg.least;  // the subject's: focus_range_map
+        } else {
+            auto visible = seen(m_data->radius, range);
+            best = visible.least;
+            if (range) m_seen_range[i] = visible.most - visible.least;
         }
-        if (range && m_travel.empty()) m_travel = layer_travel(layered);
+        if (m_spans.empty()) m_spans = layer_spans(layered);
     }
-    return best;
+    if (!layered || m_spans.size() != 2 || !m_spans[0].seen) return best;
+    // The subject moves with its own track, not the camera's: its sharpest view is a frame's.
+    torch::NoGradGuard g;
+    auto a = subject_share(*m_data, t);
+    return a * m_spans[0].least + (1.0 - a) * best;
 }
 
 torch::Tensor FitEngine::model_change(int t) const {
@@ -602,26 +661,30 @@ torch::Tensor FitEngine::focus_range_map(int t) const {
         r = m_seen_range[m_data->static_camera ? 0 : t];
     }
     const double moved = m_opts.focus_moved_px, travel = m_opts.focus_travel_px;
-    if (r.dim() == 4)  // one layer: the visible surface's
-        return range_by_travel(r, m_travel.empty() ? 0.0 : m_travel[0], moved, travel);
-    // Two layers: each layer's range where it is seen, by frame t's mask.
+    auto travel_of = [&](size_t k) {
+        return k < m_spans.size() && m_spans[k].seen ? m_spans[k].most - m_spans[k].least : 0.0;
+    };
+    auto a = subject_share(*m_data, t);
+    if (!a.defined() || m_spans.size() != 2)  // one layer: the visible surface's
+        return range_by_travel(r, travel_of(0), moved, travel);
+    // Two layers: each layer's range where frame t shows it. The subject moves with its own
+    // track, not the camera's: how far its focus moved is its travel (the range of its
+    // per-frame medians), not the range of whatever crossed its pixels.
     torch::NoGradGuard g;
-    auto a = m_data->mask[t].view({1, 1, m_data->height, m_data->width}).to(torch::kFloat32);
-    const bool known = m_travel.size() == 2;
-    return a * range_by_travel(r[0], known ? m_travel[0] : 0.0, moved, travel) +
-           (1.0 - a) * range_by_travel(r[1], known ? m_travel[1] : 0.0, moved, travel);
+    return a * range_by_travel(torch::full_like(r, travel_of(0)), travel_of(0), moved, travel) +
+           (1.0 - a) * range_by_travel(r, travel_of(1), moved, travel);
 }
 
-std::vector<double> FitEngine::layer_travel(bool layered) const {
+std::vector<FocusSpan> FitEngine::layer_spans(bool layered) const {
     const int T = m_data->frames;
     if (!layered)
-        return {focus_travel(
+        return {focus_span(
             T, [&](int s) { return m_data->radius[s]; }, nullptr)};
-    auto mask = [&](int s) { return m_data->mask[s][0]; };  // focus_travel reads it on its grid
+    auto mask = [&](int s) { return m_data->mask[s][0]; };  // focus_span reads it on its grid
     auto unmasked = [&](int s) { return 1.0 - m_data->mask[s][0].to(torch::kFloat32); };
-    return {focus_travel(
+    return {focus_span(
                 T, [&](int s) { return m_data->radius_fg[s]; }, mask),
-            focus_travel(
+            focus_span(
                 T, [&](int s) { return m_data->radius_bg[s]; }, unmasked)};
 }
 
@@ -644,7 +707,7 @@ torch::Tensor FitEngine::model_weight(int t, torch::Tensor* gamma) const {
     auto w = confidence(t);
     auto best = m_opts.sharper_view_px > 0 ? sharpest_seen_map(t) : torch::Tensor();
     if (m_opts.keep_focus_px > 0 || best.defined()) {
-        const auto reach = blur_reach(m_data->radius[t]);  // ν and γ share the dilation
+        const auto reach = layered_reach(*m_data, t);  // ν and γ share the dilation
         if (m_opts.keep_focus_px > 0) w = w * blur_need(reach, m_opts.keep_focus_px);
         if (best.defined()) {
             auto g = sharper_view(reach, best, focus_range_map(t), m_opts.sharper_view_px,

@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "model/fit_model.h"
+#include "fit/confidence.h"
 #include "fit/crops.h"
 #include "fit/presets.h"
 #include "fit/settings.h"
@@ -174,12 +175,15 @@ class FitEngine {
     // radius maps do not change while the engine lives.
     torch::Tensor seen_trust_map(int t) const;
     // The least radius any frame saw frame t's pixels at (confidence.h, sharpest_seen), cached.
+    // With two layers, per layer where frame t's mask shows it: the wall's from the wall's own
+    // radius through the camera, the subject's its sharpest frame (the least of its per-frame
+    // medians, focus_span); a sharp subject passing over the wall is no sharp view of the wall.
     torch::Tensor sharpest_seen_map(int t) const;
     // How far focus moved over frame t's pixels: the largest radius any frame saw them at less
     // the least (confidence.h, seen_radius), cached; undefined unless fit.focus_moved_px is on.
     torch::Tensor focus_range_map(int t) const;
-    // Each layer's focus_travel (one value for one layer; fg, bg for two).
-    std::vector<double> layer_travel(bool layered) const;
+    // Each layer's focus_span (one for one layer; fg, bg for two).
+    std::vector<FocusSpan> layer_spans(bool layered) const;
     // What the model changes over its own reblur in frame t: |C − Î| in sRGB, the mean over the
     // channels, over 5×5 px (as the running residual is read). [1,1,H,W]; renders the frame.
     torch::Tensor model_change(int t) const;
@@ -251,7 +255,7 @@ class FitEngine {
     mutable std::deque<ChangeMap> m_change;
     mutable std::vector<torch::Tensor> m_seen;  // sharpest_seen_map's cache, under the mutex below
     mutable std::vector<torch::Tensor> m_seen_range;  // focus_range_map's, filled beside it
-    mutable std::vector<double> m_travel;  // each layer's focus_travel (fg, bg), filled beside it
+    mutable std::vector<FocusSpan> m_spans;  // each layer's focus_span (fg, bg), filled beside it
     mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;  // whether steps take crops (FitOptions::crop_px, and the model
