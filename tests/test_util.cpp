@@ -98,12 +98,13 @@ TinyClip make_tiny(const std::string& name, const std::string& scene, const std:
     return c;
 }
 
-std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub) {
+std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub, std::string* output) {
     fs::path out = c.dir / sub;
     RunResult r = cli("export '" + c.project.string() + "' --what sharp --format exr32 --out '" +
                       out.string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
+    if (output) *output = r.output;
     return read_all_frames((out / "sharp_%04d.exr").string());
 }
 

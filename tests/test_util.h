@@ -48,7 +48,8 @@ TinyClip make_tiny(const std::string& name, const std::string& scene = "tripod",
                    const std::string& size = "64x36");
 
 // Exports the project's sharp frames as 32-bit EXR under `c.dir / sub` and reads them back.
-std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub);
+std::vector<Image> export_sharp(const TinyClip& c, const std::string& sub,
+                                std::string* output = nullptr);
 
 // Sets (or, with nullopt, removes: the default applies) a tuning setting in the project's
 // project.json, as `fit --set` keeps it; settings that act on the output apply at export.

@@ -6,6 +6,7 @@
 #include "args.h"
 #include "bench_eval.h"
 #include "commands.h"
+#include "fit/settings.h"
 #include "session/fit_session.h"
 #include "metrics/metrics.h"
 #include "util/error.h"
@@ -41,9 +42,19 @@ std::vector<double> parse_times(const std::string& s) {
 
 // --score <project>: no fit; the fitted project's sharp output, as `refocus export` writes it
 // at the project's settings now, scored against the clip's truth. Re-scores a checkpoint after a
-// change to the output rules, which act at export and not on the fit.
-int score_fitted(const fs::path& clip, const fs::path& dir) {
+// change to the output rules, which act at export and not on the fit. `sets` (--set) change
+// the project's settings in memory only: the output rules' (fit.*) compare on one checkpoint;
+// project.json is not written.
+int score_fitted(const fs::path& clip, const fs::path& dir, const std::vector<std::string>& sets) {
     Project project = Project::load(dir);
+    if (!sets.empty()) {
+        auto& fit = project.sections["fit"];
+        Settings settings;
+        if (fit.contains("settings"))
+            settings.set_json(fit["settings"], project.project_file().string() + ": fit.settings");
+        for (const auto& assignment : sets) settings.set_assignment(assignment);
+        fit["settings"] = settings.to_json();
+    }
     PrepareLog log([](const std::string& l) { std::fprintf(stderr, "  %s\n", l.c_str()); });
     auto engine = open_fitted(project, log);
     std::vector<Image> gt = read_all_frames((clip / "sharp_%04d.png").string());
@@ -64,6 +75,8 @@ int score_fitted(const fs::path& clip, const fs::path& dir) {
                 r.psnr, r.ssim, r.tpsnr, r.reblur_psnr);
     std::printf("gain over input: %+.2f dB PSNR, %+.2f dB tPSNR\n", r.psnr - r.in_psnr,
                 r.tpsnr - r.in_tpsnr);
+    std::printf("residual: RMS %.2f levels, noise %.2f levels, model trusted %.2f\n",
+                engine->residual_rms(), engine->data().noise_levels, engine->model_trust());
     if (!last.model.empty() && last.model.size() == last.sharp.size()) {
         // What the rules keep of the model (bench corpus's yardstick): the plate alone, the
         // oracle blend, the worst frame and the share of the oracle's gain the output captures.
@@ -100,7 +113,7 @@ int bench_fit(int argc, char** argv) {
     const fs::path clip = a.get("clip");
     if (!fs::exists(clip / "clip.json"))
         throw Error(file_error(clip.string(), "not a refocus synth clip (no clip.json)"));
-    if (a.has("score")) return score_fitted(clip, a.get("score"));
+    if (a.has("score")) return score_fitted(clip, a.get("score"), a.get_all("set"));
     const std::string preset = a.get("preset", "fast");
     const double minutes = a.get_double("minutes", 10.0);
     const bool oracle = a.has("oracle-coc");

@@ -63,6 +63,12 @@ struct FitOptions {
     // the plate takes the input's content, since a blur keeps local means and a colour or
     // exposure shift is never a deblur (0: off).
     double lock_low_px = 2.0;
+    // A fit that explains the clip (FitEngine::model_trust): its reblur residual's RMS over the
+    // noise's under this many 8-bit levels (0: never trusted).
+    double explained_rms = 3.5;
+    // Where the fit is trusted, the model replaces a pixel that no frame saw sharper where the
+    // blur reaches twice this (px), none under it (smoothstep).
+    double trusted_blur_px = 1.0;
     // Seen sharp (confidence.h, seen_trust): the model restores a pixel fully where some frame
     // saw it blurred by at most this radius (px), and not from twice that: detail no frame
     // recorded comes from deconvolution alone (0: trust it everywhere).
@@ -187,6 +193,18 @@ class FitEngine {
     // What the model changes over its own reblur in frame t: |C − Î| in sRGB, the mean over the
     // channels, over 5×5 px (as the running residual is read). [1,1,H,W]; renders the frame.
     torch::Tensor model_change(int t) const;
+    // How well the fit explains the clip: the mean over frames (at most 32, spread over the
+    // clip) of the RMS of each frame's running reblur residual (sRGB, the mean |residual| of
+    // a channel over 5×5 px), in 8-bit levels. Noise of σ alone leaves 0.8σ; what the frames
+    // disagree on (render noise in the blur disks, a lens that is not the model's,
+    // misregistration) adds to it. NaN before any frame is measured. Cached for the step.
+    double residual_rms() const;
+    // 1 where the fit explains the clip (residual_rms past the noise's 0.8σ under
+    // fit.explained_rms), 0 from 1.4× that (smoothstep); 0 with the setting off or no residual.
+    // Where it is 1 the output rules take the model's deconvolution as the model's lens and
+    // noise say: γ opens where the blur reaches 2 × fit.trusted_blur_px, and the low-frequency
+    // lock reads the model's reblur.
+    double model_trust() const;
     // The model's share of the output: confidence(t) times the need (0 where no blur reaches
     // the pixel, fit.keep_focus_px) and γ_t (confidence.h, sharper_view: 1 where another frame
     // saw the pixel sharper). [1,1,H,W], undefined when it is 1 everywhere. `gamma`, when given,
@@ -255,7 +273,9 @@ class FitEngine {
     mutable std::deque<ChangeMap> m_change;
     mutable std::vector<torch::Tensor> m_seen;  // sharpest_seen_map's cache, under the mutex below
     mutable std::vector<torch::Tensor> m_seen_range;  // focus_range_map's, filled beside it
-    mutable std::vector<FocusSpan> m_spans;  // each layer's focus_span (fg, bg), filled beside it
+    mutable std::vector<FocusSpan> m_spans;
+    mutable double m_resid_rms = 0;  // residual_rms()'s, at step m_resid_rms_step
+    mutable int64_t m_resid_rms_step = -1;  // each layer's focus_span (fg, bg), filled beside it
     mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;  // whether steps take crops (FitOptions::crop_px, and the model

@@ -172,6 +172,41 @@ torch::Tensor FitEngine::model_change(int t) const {
     return d;
 }
 
+double FitEngine::residual_rms() const {
+    if (!m_resid.defined()) return std::numeric_limits<double>::quiet_NaN();
+    std::lock_guard<std::mutex> lock(m_unexplained_mutex);
+    if (m_resid_rms_step == m_step && m_resid_rms_step >= 0) return m_resid_rms;
+    torch::NoGradGuard g;
+    const int T = m_data->frames, n = std::min(T, 32);
+    double sum = 0;
+    int counted = 0;
+    for (int k = 0; k < n; ++k) {
+        const int s = n > 1 ? int(std::lround(double(k) * (T - 1) / (n - 1))) : 0;
+        const auto r = m_resid[s];
+        const int64_t H = r.size(1), W = r.size(2);
+        const int64_t step = std::max<int64_t>(1, int64_t(std::sqrt(double(H * W) / 65536.0)));
+        auto v = r.slice(1, 0, H, step).slice(2, 0, W, step).flatten();
+        auto seen = v.masked_select(v >= 0).to(torch::kFloat64);
+        if (seen.numel() == 0) continue;  // a frame no step has reached yet
+        sum += seen.pow(2).mean().sqrt().item<double>() * 255.0;
+        ++counted;
+    }
+    m_resid_rms = counted > 0 ? sum / counted : std::numeric_limits<double>::quiet_NaN();
+    m_resid_rms_step = m_step;
+    return m_resid_rms;
+}
+
+double FitEngine::model_trust() const {
+    const double lo = m_opts.explained_rms;
+    if (!(lo > 0)) return 0.0;
+    const double rms = residual_rms();
+    if (!std::isfinite(rms)) return 0.0;  // never measured: the rules for a model that is wrong
+    const double noise = 0.8 * std::max(m_data->noise_levels, 0.0);
+    const double excess = std::sqrt(std::max(0.0, rms * rms - noise * noise));
+    const double x = std::clamp((excess - lo) / (0.4 * lo), 0.0, 1.0);
+    return 1.0 - x * x * (3 - 2 * x);
+}
+
 torch::Tensor FitEngine::focus_range_map(int t) const {
     if (!(m_opts.focus_moved_px > 0) || !sharpest_seen_map(t).defined()) return {};
     torch::Tensor r;
@@ -231,6 +266,11 @@ torch::Tensor FitEngine::model_weight(int t, torch::Tensor* gamma) const {
         if (best.defined()) {
             auto g = sharper_view(reach, best, focus_range_map(t), m_opts.sharper_view_px,
                                   m_opts.sharper_view_moved_px, m_opts.focus_moved_px);
+            // A fit that explains the clip restores where frame t is its own sharpest view too
+            // (frames averaged, its lens and noise the model's), where the blur reaches twice
+            // fit.trusted_blur_px: under that the shot's own detail beats the resampled atlas.
+            const double m = model_trust();
+            if (m > 0) g = torch::maximum(g, m * blur_need(reach, m_opts.trusted_blur_px));
             w = w * g;
             if (gamma) *gamma = g;
         }
@@ -249,9 +289,15 @@ void FitEngine::apply_fallback(Layers& L, int t, const Layers* model) const {
     // The lock's correction, from the model's plate, is added to every layer so that
     // α·F + (1 − α)·B takes it as the plate does.
     torch::Tensor lift;
-    if (lock)
-        lift = low_frequency_lock(model && model->sharp.defined() ? model->sharp : L.sharp, in,
-                                  m_opts.lock_low_px);
+    if (lock) {
+        // The input's low band is the sharp frame's only where the blur is far under the lock's
+        // scale; elsewhere it is the reblur's. A fit that explains the clip says what the blur
+        // changed there (its reblur); one that does not is held to the input's low band.
+        const Layers& M = model && model->sharp.defined() ? *model : L;
+        const double m = model_trust();
+        auto ref = m > 0 ? m * reblur(M, {t}) + (1.0 - m) * M.sharp : M.sharp;
+        lift = low_frequency_lock(ref, in, m_opts.lock_low_px);
+    }
     // The layers blend as the plate does, so that α·F + (1 − α)·B stays the plate (the
     // refocused frames are made from the layers); edits (x − the model's x) stay on top.
     auto blend = [&](torch::Tensor& x, const torch::Tensor& x_model) {

@@ -60,6 +60,13 @@ const std::vector<Field<FitOptions>>& fit_fields() {
          "the fallback is smooth in time: grown over +-n frames, then averaged over +-n"},
         {"fit.lock_low_px", &O::lock_low_px, 0, 64,
          "the plate takes the input's content below this Gaussian scale (px); 0: off"},
+        {"fit.explained_rms", &O::explained_rms, 0, 255,
+         "the fit explains the clip where its reblur residual's RMS over the noise is under "
+         "this (8-bit levels; trusted fully below, not from 1.4x): there the sharper-view rule "
+         "opens and the lock reads the model's reblur (0: never)"},
+        {"fit.trusted_blur_px", &O::trusted_blur_px, 0, 64,
+         "where the fit is trusted, the model replaces pixels no frame saw sharper where the "
+         "blur reaches twice this (px), none under it"},
         {"fit.trust_seen_px", &O::trust_seen_px, 0, 64,
          "the model restores a pixel fully where some frame saw it blurred by at most this "
          "radius (px), not from twice that; elsewhere the output is the shot (0: off)"},

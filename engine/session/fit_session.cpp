@@ -2,6 +2,7 @@
 
 #include <torch/torch.h>
 
+#include <cmath>
 #include <future>
 #include <thread>
 
@@ -254,7 +255,24 @@ std::string FallbackShare::summary() const {
                   ", on %.1f%% that no frame saw sharp, on %.1f%% that no other frame saw sharper,"
                   " and on %.1f%% where nothing is blurred",
                   100 * unseen / frames, 100 * not_sharper / frames, 100 * in_focus / frames);
-    return buf;
+    std::string out = buf;
+    // Whether the rules took the model's deconvolution (docs/method.md, A fit that explains the
+    // clip): the residual against the noise decides it.
+    if (std::isfinite(residual_rms)) {
+        std::snprintf(buf, sizeof buf,
+                      "; the reblur meets the input to %.2f levels RMS (noise %.2f): %s",
+                      residual_rms, noise,
+                      trust >= 0.999  ? "the fit explains the clip, its deconvolution is kept"
+                      : trust <= 0.001 ? "the fit does not explain the clip well enough to "
+                                         "deconvolve beyond its sharpest views"
+                                       : "the fit is partly trusted");
+        out += buf;
+        if (trust > 0.001 && trust < 0.999) {
+            std::snprintf(buf, sizeof buf, " (%.2f)", trust);
+            out += buf;
+        }
+    }
+    return out;
 }
 
 namespace {
@@ -284,6 +302,11 @@ void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
     s.not_sharper += not_sharper;
     s.in_focus += std::max(0.0, shot - u - unseen - not_sharper);
     if (u > s.worst_share) s.worst_share = u, s.worst_frame = t;
+    if (s.frames == 0) {
+        s.residual_rms = engine.residual_rms();
+        s.noise = engine.data().noise_levels;
+        s.trust = engine.model_trust();
+    }
     ++s.frames;
 }
 

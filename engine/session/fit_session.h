@@ -2,6 +2,7 @@
 // A project's fit: its settings (project.json "fit" section), its checkpoint folder, and the
 // export of its results. Shared by `refocus fit`, `refocus export`, the studio and the benches.
 #include <functional>
+#include <limits>
 #include <memory>
 #include <string>
 
@@ -67,6 +68,8 @@ struct FallbackShare {
     int frames = 0;
     int worst_frame = -1;         // the frame with the largest unexplained share
     double worst_share = 0;       // ... and that share
+    // How well the fit explains the clip (FitEngine::residual_rms, model_trust): NaN unmeasured.
+    double residual_rms = std::numeric_limits<double>::quiet_NaN(), noise = 0, trust = 0;
     std::string summary() const;  // one line for the terminal
 };
 
