@@ -231,6 +231,17 @@ void draw_fit_panel(FitPanelState& p, StudioContext& ctx) {
         item_tip(
             "Reblur PSNR: how closely the fitted sharp layers, blurred again, match the "
             "clip (higher is better). Loss: what the fit minimises.");
+        if (std::isfinite(s.residual_rms)) {
+            ImGui::Text("residual %.2f levels RMS: %s", s.residual_rms,
+                        s.trust >= 0.999   ? "the fit explains the clip"
+                        : s.trust <= 0.001 ? "not trusted to deconvolve"
+                                           : "partly trusted");
+            item_tip(
+                "How far the fit's reblur misses the clip (8-bit levels, the mean over frames of "
+                "its RMS). Near the noise, the fit explains the clip and the sharp output keeps "
+                "its deconvolution where no frame saw sharper (fit.explained_rms); above it, the "
+                "output keeps the shot there.");
+        }
         for (const auto& [k, v] : s.terms) ImGui::BulletText("%s  %.5g", k.c_str(), v);
     }
     if (st.history.size() >= 2) draw_fit_curves(st);

@@ -363,7 +363,10 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     rng >> m_rng;
     m_perm = j.at("perm").get<std::vector<int64_t>>();
     m_perm_pos = j.at("perm_pos").get<size_t>();
+    const double rms = residual_rms(), trust = model_trust();
     std::lock_guard<std::mutex> l2(m_snap_mutex);
+    m_snap.residual_rms = rms;
+    m_snap.trust = trust;
     m_snap.step = m_step;
     m_snap.elapsed_s = m_elapsed;
     // A checkpoint without the figures shows 0 for them up to the next step.

@@ -446,7 +446,13 @@ void FitEngine::step() {
     if (timing_enabled())
         add_timing("step (all)", std::chrono::duration<double>(Clock::now() - t0).count());
 
+    // How well the fit explains the clip, for the studio (a measure over 32 frames: not at
+    // every step).
+    double rms = std::numeric_limits<double>::quiet_NaN(), trust = 0;
+    const bool measure = m_step % 25 == 0 || done();
+    if (measure) rms = residual_rms(), trust = model_trust();
     std::lock_guard<std::mutex> lock(m_snap_mutex);
+    if (measure) m_snap.residual_rms = rms, m_snap.trust = trust;
     m_snap.step = m_step;
     m_snap.loss = loss_v;
     m_snap.terms = terms;

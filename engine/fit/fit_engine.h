@@ -8,6 +8,7 @@
 #include <atomic>
 #include <chrono>
 #include <deque>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <random>
@@ -118,7 +119,11 @@ struct FitSnapshot {
     int64_t step = 0;
     double loss = 0.0;
     LossTerms terms;
-    double reblur_psnr = 0.0;     // of the last batch, sRGB, dB
+    double reblur_psnr = 0.0;  // of the last batch, sRGB, dB
+    // FitEngine::residual_rms and model_trust, every 25 steps and at a checkpoint's load (NaN:
+    // not measured yet).
+    double residual_rms = std::numeric_limits<double>::quiet_NaN();
+    double trust = 0.0;
     double elapsed_s = 0.0;       // training time (pauses excluded)
     double eta_s = -1.0;          // -1 when unknown
     double progress = 0.0;        // 0..1 of the budget
@@ -274,7 +279,7 @@ class FitEngine {
     mutable std::vector<torch::Tensor> m_seen;  // sharpest_seen_map's cache, under the mutex below
     mutable std::vector<torch::Tensor> m_seen_range;  // focus_range_map's, filled beside it
     mutable std::vector<FocusSpan> m_spans;
-    mutable double m_resid_rms = 0;  // residual_rms()'s, at step m_resid_rms_step
+    mutable double m_resid_rms = 0;         // residual_rms()'s, at step m_resid_rms_step
     mutable int64_t m_resid_rms_step = -1;  // each layer's focus_span (fg, bg), filled beside it
     mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)

@@ -262,7 +262,7 @@ std::string FallbackShare::summary() const {
         std::snprintf(buf, sizeof buf,
                       "; the reblur meets the input to %.2f levels RMS (noise %.2f): %s",
                       residual_rms, noise,
-                      trust >= 0.999  ? "the fit explains the clip, its deconvolution is kept"
+                      trust >= 0.999   ? "the fit explains the clip, its deconvolution is kept"
                       : trust <= 0.001 ? "the fit does not explain the clip well enough to "
                                          "deconvolve beyond its sharpest views"
                                        : "the fit is partly trusted");

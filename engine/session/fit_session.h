@@ -66,8 +66,8 @@ struct FocusTrack;  // edit/focus.h
 struct FallbackShare {
     double unexplained = 0, unseen = 0, not_sharper = 0, in_focus = 0;
     int frames = 0;
-    int worst_frame = -1;         // the frame with the largest unexplained share
-    double worst_share = 0;       // ... and that share
+    int worst_frame = -1;    // the frame with the largest unexplained share
+    double worst_share = 0;  // ... and that share
     // How well the fit explains the clip (FitEngine::residual_rms, model_trust): NaN unmeasured.
     double residual_rms = std::numeric_limits<double>::quiet_NaN(), noise = 0, trust = 0;
     std::string summary() const;  // one line for the terminal
