@@ -231,7 +231,13 @@ void draw_fit_panel(FitPanelState& p, StudioContext& ctx) {
         item_tip(
             "Reblur PSNR: how closely the fitted sharp layers, blurred again, match the "
             "clip (higher is better). Loss: what the fit minimises.");
-        if (std::isfinite(s.residual_rms)) {
+        if (std::isfinite(s.residual_rms) && !std::isfinite(s.trust)) {
+            ImGui::Text("residual %.2f levels RMS", s.residual_rms);
+            item_tip(
+                "How far the fit's reblur misses the clip (8-bit levels, the mean over frames of "
+                "its RMS). Near the noise the fit explains the clip; fit.explained_rms lets the "
+                "sharp output keep its deconvolution there.");
+        } else if (std::isfinite(s.residual_rms)) {
             ImGui::Text("residual %.2f levels RMS: %s", s.residual_rms,
                         s.trust >= 0.999   ? "the fit explains the clip"
                         : s.trust <= 0.001 ? "not trusted to deconvolve"

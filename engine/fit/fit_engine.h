@@ -65,8 +65,9 @@ struct FitOptions {
     // exposure shift is never a deblur (0: off).
     double lock_low_px = 2.0;
     // A fit that explains the clip (FitEngine::model_trust): its reblur residual's RMS over the
-    // noise's under this many 8-bit levels (0: never trusted).
-    double explained_rms = 3.5;
+    // noise's under this many 8-bit levels (0: never trusted, the default: a long fit of a
+    // wrong model can reach a low residual too; docs/method.md).
+    double explained_rms = 0.0;
     // Where the fit is trusted, the model replaces a pixel that no frame saw sharper where the
     // blur reaches twice this (px), none under it (smoothstep).
     double trusted_blur_px = 1.0;
@@ -278,9 +279,9 @@ class FitEngine {
     mutable std::deque<ChangeMap> m_change;
     mutable std::vector<torch::Tensor> m_seen;  // sharpest_seen_map's cache, under the mutex below
     mutable std::vector<torch::Tensor> m_seen_range;  // focus_range_map's, filled beside it
-    mutable std::vector<FocusSpan> m_spans;
-    mutable double m_resid_rms = 0;         // residual_rms()'s, at step m_resid_rms_step
-    mutable int64_t m_resid_rms_step = -1;  // each layer's focus_span (fg, bg), filled beside it
+    mutable std::vector<FocusSpan> m_spans;  // each layer's focus_span (fg, bg), filled beside it
+    mutable double m_resid_rms = 0;          // residual_rms()'s, at step m_resid_rms_step
+    mutable int64_t m_resid_rms_step = -1;
     mutable std::mutex m_unexplained_mutex;
     int64_t m_pad = 0;     // training renders this margin beyond the frame (max_pad)
     bool m_crops = false;  // whether steps take crops (FitOptions::crop_px, and the model

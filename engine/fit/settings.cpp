@@ -63,7 +63,7 @@ const std::vector<Field<FitOptions>>& fit_fields() {
         {"fit.explained_rms", &O::explained_rms, 0, 255,
          "the fit explains the clip where its reblur residual's RMS over the noise is under "
          "this (8-bit levels; trusted fully below, not from 1.4x): there the sharper-view rule "
-         "opens and the lock reads the model's reblur (0: never)"},
+         "opens and the lock reads the model's reblur (0, the default: never; 3.5 measured)"},
         {"fit.trusted_blur_px", &O::trusted_blur_px, 0, 64,
          "where the fit is trusted, the model replaces pixels no frame saw sharper where the "
          "blur reaches twice this (px), none under it"},

@@ -258,7 +258,12 @@ std::string FallbackShare::summary() const {
     std::string out = buf;
     // Whether the rules took the model's deconvolution (docs/method.md, A fit that explains the
     // clip): the residual against the noise decides it.
-    if (std::isfinite(residual_rms)) {
+    if (std::isfinite(residual_rms) && !std::isfinite(trust)) {
+        std::snprintf(buf, sizeof buf,
+                      "; the reblur meets the input to %.2f levels RMS (noise %.2f)", residual_rms,
+                      noise);
+        out += buf;
+    } else if (std::isfinite(residual_rms)) {
         std::snprintf(buf, sizeof buf,
                       "; the reblur meets the input to %.2f levels RMS (noise %.2f): %s",
                       residual_rms, noise,
@@ -305,7 +310,9 @@ void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
     if (s.frames == 0) {
         s.residual_rms = engine.residual_rms();
         s.noise = engine.data().noise_levels;
-        s.trust = engine.model_trust();
+        // NaN: the trust is off (fit.explained_rms 0), and the line gives the residual only.
+        s.trust = engine.options().explained_rms > 0 ? engine.model_trust()
+                                                     : std::numeric_limits<double>::quiet_NaN();
     }
     ++s.frames;
 }
