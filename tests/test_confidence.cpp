@@ -4,6 +4,7 @@
 #include <doctest/doctest.h>
 
 #include <cstdio>
+#include <limits>
 #include <vector>
 
 #include "fit/confidence.h"
@@ -294,6 +295,22 @@ TEST_CASE("the evidence rule: a residual the noise and the model's change explai
     CHECK_FALSE(unexplained_share_evidence(torch::full({1, 1, 4, 4}, -1.0),
                                            torch::zeros({1, 1, 4, 4}), 4, 0.5, 0.004)
                     .defined());
+}
+
+TEST_CASE("a fit explains the clip where its residual over the noise is under the threshold") {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    CHECK(explained_trust(2.0, 0.0, 3.5) == doctest::Approx(1.0));
+    CHECK(explained_trust(3.5, 0.0, 3.5) == doctest::Approx(1.0));
+    CHECK(explained_trust(4.9, 0.0, 3.5) == doctest::Approx(0.0));
+    const double mid = explained_trust(4.2, 0.0, 3.5);  // halfway through 3.5..4.9
+    CHECK(mid == doctest::Approx(0.5));
+    // σ 4 noise leaves 0.8·4 = 3.2 levels a right model cannot explain: 4.8 RMS is 3.58 over it.
+    CHECK(explained_trust(4.8, 4.0, 3.5) > 0.95);
+    CHECK(explained_trust(4.8, 0.0, 3.5) < 0.1);
+    // A residual under the noise is no excess; never measured or off is no trust.
+    CHECK(explained_trust(1.0, 4.0, 3.5) == doctest::Approx(1.0));
+    CHECK(explained_trust(nan, 0.0, 3.5) == 0.0);
+    CHECK(explained_trust(1.0, 0.0, 0.0) == 0.0);
 }
 
 TEST_CASE("the low-frequency lock: a colour shift is undone, fine detail is kept") {

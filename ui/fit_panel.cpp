@@ -235,18 +235,19 @@ void draw_fit_panel(FitPanelState& p, StudioContext& ctx) {
             ImGui::Text("residual %.2f levels RMS", s.residual_rms);
             item_tip(
                 "How far the fit's reblur misses the clip (8-bit levels, the mean over frames of "
-                "its RMS). Near the noise the fit explains the clip; fit.explained_rms lets the "
-                "sharp output keep its deconvolution there.");
+                "its RMS). Near the noise the fit explains the clip; with fit.explained_rms 0 "
+                "the trust is off and the input's low band holds.");
         } else if (std::isfinite(s.residual_rms)) {
             ImGui::Text("residual %.2f levels RMS: %s", s.residual_rms,
                         s.trust >= 0.999   ? "the fit explains the clip"
-                        : s.trust <= 0.001 ? "not trusted to deconvolve"
+                        : s.trust <= 0.001 ? "not trusted"
                                            : "partly trusted");
             item_tip(
                 "How far the fit's reblur misses the clip (8-bit levels, the mean over frames of "
-                "its RMS). Near the noise, the fit explains the clip and the sharp output keeps "
-                "its deconvolution where no frame saw sharper (fit.explained_rms); above it, the "
-                "output keeps the shot there.");
+                "its RMS). Near the noise (fit.explained_rms) the fit explains the clip: the sharp "
+                "output keeps the low band the model restores; above it, the input's low band "
+                "holds. fit.trusted_blur_px lets a trusted fit deconvolve where no frame saw "
+                "sharper.");
         }
         for (const auto& [k, v] : s.terms) ImGui::BulletText("%s  %.5g", k.c_str(), v);
     }

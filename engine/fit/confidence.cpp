@@ -153,6 +153,14 @@ torch::Tensor blur_reach(const torch::Tensor& radius) {
     return reach;
 }
 
+double explained_trust(double rms, double noise_levels, double lo) {
+    if (!(lo > 0) || !std::isfinite(rms)) return 0.0;
+    const double noise = 0.8 * std::max(noise_levels, 0.0);
+    const double excess = std::sqrt(std::max(0.0, rms * rms - noise * noise));
+    const double x = std::clamp((excess - lo) / (0.4 * lo), 0.0, 1.0);
+    return 1.0 - x * x * (3 - 2 * x);
+}
+
 torch::Tensor blur_need(const torch::Tensor& reach, double focus_px) {
     torch::NoGradGuard g;
     if (!(focus_px > 0)) return torch::ones_like(reach);

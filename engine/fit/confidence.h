@@ -58,6 +58,11 @@ SeenRadius seen_radius(int t, int frames, int max_frames, const torch::Tensor& t
                        bool static_camera, double unseen_px,
                        const std::function<torch::Tensor(int)>& radius_of, bool with_most = true);
 
+// How far a fit whose reblur misses the clip by `rms` (8-bit levels, FitEngine::residual_rms)
+// explains it: the excess over the noise's 0.8σ, √max(0, rms² − (0.8σ)²), 1 under `lo`, 0 from
+// 1.4·lo (smoothstep). 0 where rms is not finite (never measured) or lo ≤ 0 (off).
+double explained_trust(double rms, double noise_levels, double lo);
+
 // τ: how far the model is trusted to restore a pixel that the sharpest frame saw blurred by
 // `sharpest` px: 1 up to trust_px, 0 from twice that (smoothstep), feathered by 4 px. Detail
 // that no frame recorded comes from deconvolution alone, which noise and a kernel that differs

@@ -65,12 +65,13 @@ struct FitOptions {
     // exposure shift is never a deblur (0: off).
     double lock_low_px = 2.0;
     // A fit that explains the clip (FitEngine::model_trust): its reblur residual's RMS over the
-    // noise's under this many 8-bit levels (0: never trusted, the default: a long fit of a
-    // wrong model can reach a low residual too; docs/method.md).
-    double explained_rms = 0.0;
-    // Where the fit is trusted, the model replaces a pixel that no frame saw sharper where the
-    // blur reaches twice this (px), none under it (smoothstep).
-    double trusted_blur_px = 1.0;
+    // noise's under this many 8-bit levels (0: never trusted). Its low-frequency lock then reads
+    // the model's reblur, which γ keeps to where another frame saw sharper (docs/method.md).
+    double explained_rms = 3.5;
+    // Where the fit is trusted, the model also replaces a pixel that no frame saw sharper where
+    // the blur reaches twice this (px), none under it (smoothstep). 0 (the default): never; a
+    // long fit of a wrong radius or lens reaches a low residual too.
+    double trusted_blur_px = 0.0;
     // Seen sharp (confidence.h, seen_trust): the model restores a pixel fully where some frame
     // saw it blurred by at most this radius (px), and not from twice that: detail no frame
     // recorded comes from deconvolution alone (0: trust it everywhere).
@@ -207,9 +208,8 @@ class FitEngine {
     double residual_rms() const;
     // 1 where the fit explains the clip (residual_rms past the noise's 0.8σ under
     // fit.explained_rms), 0 from 1.4× that (smoothstep); 0 with the setting off or no residual.
-    // Where it is 1 the output rules take the model's deconvolution as the model's lens and
-    // noise say: γ opens where the blur reaches 2 × fit.trusted_blur_px, and the low-frequency
-    // lock reads the model's reblur.
+    // Where it is 1 the low-frequency lock reads the model's reblur, and with
+    // fit.trusted_blur_px set γ opens where the blur reaches twice that.
     double model_trust() const;
     // The model's share of the output: confidence(t) times the need (0 where no blur reaches
     // the pixel, fit.keep_focus_px) and γ_t (confidence.h, sharper_view: 1 where another frame

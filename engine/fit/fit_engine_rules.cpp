@@ -197,14 +197,8 @@ double FitEngine::residual_rms() const {
 }
 
 double FitEngine::model_trust() const {
-    const double lo = m_opts.explained_rms;
-    if (!(lo > 0)) return 0.0;
-    const double rms = residual_rms();
-    if (!std::isfinite(rms)) return 0.0;  // never measured: the rules for a model that is wrong
-    const double noise = 0.8 * std::max(m_data->noise_levels, 0.0);
-    const double excess = std::sqrt(std::max(0.0, rms * rms - noise * noise));
-    const double x = std::clamp((excess - lo) / (0.4 * lo), 0.0, 1.0);
-    return 1.0 - x * x * (3 - 2 * x);
+    if (!(m_opts.explained_rms > 0)) return 0.0;
+    return explained_trust(residual_rms(), m_data->noise_levels, m_opts.explained_rms);
 }
 
 torch::Tensor FitEngine::focus_range_map(int t) const {
@@ -266,10 +260,11 @@ torch::Tensor FitEngine::model_weight(int t, torch::Tensor* gamma) const {
         if (best.defined()) {
             auto g = sharper_view(reach, best, focus_range_map(t), m_opts.sharper_view_px,
                                   m_opts.sharper_view_moved_px, m_opts.focus_moved_px);
-            // A fit that explains the clip restores where frame t is its own sharpest view too
-            // (frames averaged, its lens and noise the model's), where the blur reaches twice
-            // fit.trusted_blur_px: under that the shot's own detail beats the resampled atlas.
-            const double m = model_trust();
+            // With fit.trusted_blur_px, a fit that explains the clip restores where frame t is
+            // its own sharpest view too, where the blur reaches twice that: under it the shot's
+            // own detail beats the resampled atlas. Off by default: the residual cannot see a
+            // radius or lens that is wrong in the blur's null space (docs/method.md).
+            const double m = m_opts.trusted_blur_px > 0 ? model_trust() : 0.0;
             if (m > 0) g = torch::maximum(g, m * blur_need(reach, m_opts.trusted_blur_px));
             w = w * g;
             if (gamma) *gamma = g;

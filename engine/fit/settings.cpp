@@ -62,11 +62,12 @@ const std::vector<Field<FitOptions>>& fit_fields() {
          "the plate takes the input's content below this Gaussian scale (px); 0: off"},
         {"fit.explained_rms", &O::explained_rms, 0, 255,
          "the fit explains the clip where its reblur residual's RMS over the noise is under "
-         "this (8-bit levels; trusted fully below, not from 1.4x): there the sharper-view rule "
-         "opens and the lock reads the model's reblur (0, the default: never; 3.5 measured)"},
+         "this (8-bit levels; trusted fully below, not from 1.4x): there the low-frequency lock "
+         "reads the model's reblur, not its sharp frame (0: never)"},
         {"fit.trusted_blur_px", &O::trusted_blur_px, 0, 64,
-         "where the fit is trusted, the model replaces pixels no frame saw sharper where the "
-         "blur reaches twice this (px), none under it"},
+         "where the fit is trusted, the model also replaces pixels no frame saw sharper where "
+         "the blur reaches twice this (px), none under it (0, the default: never; 1 measured: "
+         "gains where the lens is the model's, loses where the radius or lens is wrong)"},
         {"fit.trust_seen_px", &O::trust_seen_px, 0, 64,
          "the model restores a pixel fully where some frame saw it blurred by at most this "
          "radius (px), not from twice that; elsewhere the output is the shot (0: off)"},

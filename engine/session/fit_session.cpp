@@ -267,9 +267,12 @@ std::string FallbackShare::summary() const {
         std::snprintf(buf, sizeof buf,
                       "; the reblur meets the input to %.2f levels RMS (noise %.2f): %s",
                       residual_rms, noise,
-                      trust >= 0.999   ? "the fit explains the clip, its deconvolution is kept"
-                      : trust <= 0.001 ? "the fit does not explain the clip well enough to "
-                                         "deconvolve beyond its sharpest views"
+                      trust >= 0.999   ? (deconvolves ? "the fit explains the clip, its "
+                                                        "deconvolution is kept"
+                                                      : "the fit explains the clip, the lock "
+                                                        "reads its reblur")
+                      : trust <= 0.001 ? "the fit does not explain the clip, the lock holds it "
+                                         "to the input's low band"
                                        : "the fit is partly trusted");
         out += buf;
         if (trust > 0.001 && trust < 0.999) {
@@ -313,6 +316,7 @@ void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
         // NaN: the trust is off (fit.explained_rms 0), and the line gives the residual only.
         s.trust = engine.options().explained_rms > 0 ? engine.model_trust()
                                                      : std::numeric_limits<double>::quiet_NaN();
+        s.deconvolves = engine.options().trusted_blur_px > 0;
     }
     ++s.frames;
 }

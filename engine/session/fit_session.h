@@ -70,6 +70,7 @@ struct FallbackShare {
     double worst_share = 0;  // ... and that share
     // How well the fit explains the clip (FitEngine::residual_rms, model_trust): NaN unmeasured.
     double residual_rms = std::numeric_limits<double>::quiet_NaN(), noise = 0, trust = 0;
+    bool deconvolves = false;     // fit.trusted_blur_px set: trust opens γ too
     std::string summary() const;  // one line for the terminal
 };
 
