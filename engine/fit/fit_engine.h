@@ -57,6 +57,10 @@ struct FitOptions {
     // rule (fallback_k, fallback_min).
     double fallback_change = 0.35;
     double fallback_floor = 0.008;
+    // Where the fit is trusted (model_trust), the evidence rule's floor rises to this many
+    // times the clip's residual RMS over the noise: a residual the fit leaves everywhere is its
+    // own, not a wrong model's (0: off).
+    double trusted_residual = 1.5;
     // Nothing to fix: where no blur of at least this radius (px) reaches a pixel, the output is
     // the shot (0: off).
     double keep_focus_px = 0.5;

@@ -72,6 +72,18 @@ torch::Tensor layered_reach(const FitData& d, int t) {
 torch::Tensor FitEngine::fallback_weight(int t) const {
     if (m_model->steps_itself() || !(m_opts.fallback_k > 0) || t < 0 || t >= m_data->frames)
         return {};
+    // A fit that explains the clip leaves its own residual everywhere (resampling, the lens's
+    // small differences): κ flags what passes fit.trusted_residual times that, over the noise
+    // (which the evidence rule adds itself). Read before the lock: residual_rms takes it.
+    double floor = m_opts.fallback_floor;
+    if (m_opts.trusted_residual > 0 && m_opts.fallback_change > 0) {
+        const double m = model_trust();
+        if (m > 0) {
+            const double rms = residual_rms(), noise = 0.8 * std::max(m_data->noise_levels, 0.0);
+            const double excess = std::sqrt(std::max(0.0, rms * rms - noise * noise));
+            floor = std::max(floor, m * m_opts.trusted_residual * excess / 255.0);
+        }
+    }
     std::lock_guard<std::mutex> lock(m_unexplained_mutex);
     if (m_unexplained_step != m_step) {
         m_unexplained.assign(m_data->frames, torch::Tensor());
@@ -88,7 +100,7 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
             else if (!(resid < 0).any().item<bool>())
                 u = unexplained_share_evidence(resid, model_change(s),
                                                std::max(m_data->noise_levels, 0.0),
-                                               m_opts.fallback_change, m_opts.fallback_floor);
+                                               m_opts.fallback_change, floor);
             return u;
         });
     // Only the window around the frame asked for is kept: an export goes in order, and a 1080p

@@ -56,6 +56,9 @@ const std::vector<Field<FitOptions>>& fit_fields() {
          "median rule (fit.fallback_k, fit.fallback_min)"},
         {"fit.fallback_floor", &O::fallback_floor, 0, 1,
          "the evidence rule's least residual (sRGB) before the input shows through"},
+        {"fit.trusted_residual", &O::trusted_residual, 0, 100,
+         "where the fit is trusted (fit.explained_rms), the evidence rule's floor rises to this "
+         "many times the clip's residual RMS over the noise (0: off)"},
         {"fit.fallback_frames", &O::fallback_frames, 0, 12,
          "the fallback is smooth in time: grown over +-n frames, then averaged over +-n"},
         {"fit.lock_low_px", &O::lock_low_px, 0, 64,
