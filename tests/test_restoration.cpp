@@ -137,7 +137,7 @@ TEST_CASE("the defaults keep a right model's gain on clean footage, and the shot
     // model's reblur, not its sharp frame, which gains over the rules of a fit not trusted (the
     // input's low band is the sharp frame's only where the blur is far under the lock's 2 px).
     CHECK(clean.trusted);
-    CHECK(clean.plate > clean.untrusted + 0.05);  // 25.02 against 24.84 dB measured
+    CHECK(clean.plate > clean.untrusted + 0.05);  // 25.41 against 24.84 dB measured
     // Under noise the plate is never worse than the shot, in the mean or in any frame.
     CHECK(noisy.plate > noisy.input);
     CHECK(noisy.worst > -0.5);
