@@ -311,6 +311,9 @@ TEST_CASE("a fit explains the clip where its residual over the noise is under th
     CHECK(explained_trust(1.0, 4.0, 3.5) == doctest::Approx(1.0));
     CHECK(explained_trust(nan, 0.0, 3.5) == 0.0);
     CHECK(explained_trust(1.0, 0.0, 0.0) == 0.0);
+    // The excess over the noise (κ's trusted floor reads it too): 5 levels over σ 5 (0.8σ = 4).
+    CHECK(residual_excess(5.0, 5.0) == doctest::Approx(3.0));
+    CHECK(residual_excess(2.0, 5.0) == 0.0);
 }
 
 TEST_CASE("the low-frequency lock: a colour shift is undone, fine detail is kept") {

@@ -153,11 +153,14 @@ torch::Tensor blur_reach(const torch::Tensor& radius) {
     return reach;
 }
 
+double residual_excess(double rms, double noise_levels) {
+    const double noise = 0.8 * std::max(noise_levels, 0.0);
+    return std::sqrt(std::max(0.0, rms * rms - noise * noise));
+}
+
 double explained_trust(double rms, double noise_levels, double lo) {
     if (!(lo > 0) || !std::isfinite(rms)) return 0.0;
-    const double noise = 0.8 * std::max(noise_levels, 0.0);
-    const double excess = std::sqrt(std::max(0.0, rms * rms - noise * noise));
-    const double x = std::clamp((excess - lo) / (0.4 * lo), 0.0, 1.0);
+    const double x = std::clamp((residual_excess(rms, noise_levels) - lo) / (0.4 * lo), 0.0, 1.0);
     return 1.0 - x * x * (3 - 2 * x);
 }
 

@@ -58,9 +58,12 @@ SeenRadius seen_radius(int t, int frames, int max_frames, const torch::Tensor& t
                        bool static_camera, double unseen_px,
                        const std::function<torch::Tensor(int)>& radius_of, bool with_most = true);
 
-// How far a fit whose reblur misses the clip by `rms` (8-bit levels, FitEngine::residual_rms)
-// explains it: the excess over the noise's 0.8σ, √max(0, rms² − (0.8σ)²), 1 under `lo`, 0 from
-// 1.4·lo (smoothstep). 0 where rms is not finite (never measured) or lo ≤ 0 (off).
+// What of a reblur residual's RMS (8-bit levels, FitEngine::residual_rms) the noise of σ levels
+// does not leave: √max(0, rms² − (0.8σ)²), 0.8σ the mean |noise| of a channel.
+double residual_excess(double rms, double noise_levels);
+
+// How far a fit whose reblur misses the clip by `rms` explains it: 1 where residual_excess is
+// under `lo`, 0 from 1.4·lo (smoothstep). 0 where rms is not finite (never measured) or lo ≤ 0.
 double explained_trust(double rms, double noise_levels, double lo);
 
 // τ: how far the model is trusted to restore a pixel that the sharpest frame saw blurred by

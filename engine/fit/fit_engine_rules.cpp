@@ -78,11 +78,10 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
     double floor = m_opts.fallback_floor;
     if (m_opts.trusted_residual > 0 && m_opts.fallback_change > 0) {
         const double m = model_trust();
-        if (m > 0) {
-            const double rms = residual_rms(), noise = 0.8 * std::max(m_data->noise_levels, 0.0);
-            const double excess = std::sqrt(std::max(0.0, rms * rms - noise * noise));
-            floor = std::max(floor, m * m_opts.trusted_residual * excess / 255.0);
-        }
+        if (m > 0)
+            floor =
+                std::max(floor, m * m_opts.trusted_residual *
+                                    residual_excess(residual_rms(), m_data->noise_levels) / 255.0);
     }
     std::lock_guard<std::mutex> lock(m_unexplained_mutex);
     if (m_unexplained_step != m_step) {
