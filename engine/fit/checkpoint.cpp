@@ -363,9 +363,7 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     rng >> m_rng;
     m_perm = j.at("perm").get<std::vector<int64_t>>();
     m_perm_pos = j.at("perm_pos").get<size_t>();
-    const double rms = residual_rms(), trust = m_opts.explained_rms > 0
-                                                   ? model_trust()
-                                                   : std::numeric_limits<double>::quiet_NaN();
+    const double rms = residual_rms(), trust = reported_trust();
     std::lock_guard<std::mutex> l2(m_snap_mutex);
     m_snap.residual_rms = rms;
     m_snap.trust = trust;

@@ -450,9 +450,7 @@ void FitEngine::step() {
     // every step).
     double rms = std::numeric_limits<double>::quiet_NaN(), trust = 0;
     const bool measure = m_step % 25 == 0 || done();
-    if (measure)
-        rms = residual_rms(),
-        trust = m_opts.explained_rms > 0 ? model_trust() : std::numeric_limits<double>::quiet_NaN();
+    if (measure) rms = residual_rms(), trust = reported_trust();
     std::lock_guard<std::mutex> lock(m_snap_mutex);
     if (measure) m_snap.residual_rms = rms, m_snap.trust = trust;
     m_snap.step = m_step;

@@ -215,6 +215,8 @@ class FitEngine {
     // Where it is 1 the low-frequency lock reads the model's reblur, and with
     // fit.trusted_blur_px set γ opens where the blur reaches twice that.
     double model_trust() const;
+    // model_trust as the studio and export report it: NaN with fit.explained_rms 0 (trust off).
+    double reported_trust() const;
     // The model's share of the output: confidence(t) times the need (0 where no blur reaches
     // the pixel, fit.keep_focus_px) and γ_t (confidence.h, sharper_view: 1 where another frame
     // saw the pixel sharper). [1,1,H,W], undefined when it is 1 everywhere. `gamma`, when given,

@@ -212,6 +212,10 @@ double FitEngine::model_trust() const {
     return explained_trust(residual_rms(), m_data->noise_levels, m_opts.explained_rms);
 }
 
+double FitEngine::reported_trust() const {
+    return m_opts.explained_rms > 0 ? model_trust() : std::numeric_limits<double>::quiet_NaN();
+}
+
 torch::Tensor FitEngine::focus_range_map(int t) const {
     if (!(m_opts.focus_moved_px > 0) || !sharpest_seen_map(t).defined()) return {};
     torch::Tensor r;

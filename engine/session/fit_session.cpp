@@ -256,8 +256,8 @@ std::string FallbackShare::summary() const {
                   " and on %.1f%% where nothing is blurred",
                   100 * unseen / frames, 100 * not_sharper / frames, 100 * in_focus / frames);
     std::string out = buf;
-    // Whether the rules took the model's deconvolution (docs/method.md, A fit that explains the
-    // clip): the residual against the noise decides it.
+    // Whether the fit is trusted (docs/method.md, A fit that explains the clip): the residual
+    // against the noise decides it.
     if (std::isfinite(residual_rms) && !std::isfinite(trust)) {
         std::snprintf(buf, sizeof buf,
                       "; the reblur meets the input to %.2f levels RMS (noise %.2f)", residual_rms,
@@ -313,9 +313,7 @@ void count_fallback(const FitEngine& engine, int t, FallbackShare& s) {
     if (s.frames == 0) {
         s.residual_rms = engine.residual_rms();
         s.noise = engine.data().noise_levels;
-        // NaN: the trust is off (fit.explained_rms 0), and the line gives the residual only.
-        s.trust = engine.options().explained_rms > 0 ? engine.model_trust()
-                                                     : std::numeric_limits<double>::quiet_NaN();
+        s.trust = engine.reported_trust();  // NaN: off, and the line gives the residual only
         s.deconvolves = engine.options().trusted_blur_px > 0;
     }
     ++s.frames;
