@@ -11,6 +11,7 @@
 #include "fit/presets.h"
 #include "util/debug.h"
 #include "util/json_file.h"
+#include "util/allocator.h"
 #include "util/threads.h"
 
 namespace {
@@ -125,6 +126,7 @@ int main(int argc, char** argv) {
             }
         try {
             if (!debug.empty()) refocus::set_debug(debug);
+            refocus::tune_allocator();
             refocus::init_threads();
             return c.run(argc, argv);
         } catch (const std::exception& e) {

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "studio.h"
+#include "util/allocator.h"
 #include "util/threads.h"
 
 int main(int argc, char** argv) {
@@ -62,6 +63,7 @@ int main(int argc, char** argv) {
     // Scripts and screenshots start from the default layout, so that they come out the same.
     o.remember_layout = o.script.empty() && o.screenshot.empty();
     try {
+        refocus::tune_allocator();
         refocus::init_threads();
         return refocus::run_studio(o);
     } catch (const std::exception& e) {
