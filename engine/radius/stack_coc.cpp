@@ -1,5 +1,6 @@
 #include "radius/stack_coc.h"
 
+#include <ATen/Parallel.h>
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
 
@@ -152,46 +153,117 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
     return c;
 }
 
+// The composite warped onto a frame, its cover there, and its blur at each radius. A static
+// camera's frames share one warp, so their blurs are made once for the layer, not once a frame
+// (kept while they fit in kMaxBytes).
+struct CompositeBlurs {
+    static constexpr int64_t kMaxBytes = int64_t(512) << 20;
+    torch::Tensor key;  // the frame → canvas matrix the blurs were made for
+    torch::Tensor aif_t, seen, spectrum;
+    std::vector<torch::Tensor> blurs;
+    bool keep = false;
+
+    void to_frame(const LayerComposite& c, int64_t t, int64_t H, int64_t W,
+                  const UniformBlurBank& bank, const StackCocOptions& o) {
+        if (key.defined() && torch::equal(key, c.to_canvas[t])) return;
+        key = c.to_canvas[t].clone();
+        aif_t = warp(c.aif.unsqueeze(0), key, H, W)[0].contiguous();
+        // Pixels whose matching window reads canvas the composite does not cover are not
+        // measured.
+        seen = erode(warp(c.covered, key, H, W, true).gt(0.999).to(torch::kFloat32),
+                     o.window)[0][0];
+        spectrum = o.direct_blur ? torch::Tensor() : bank.spectrum(aif_t);
+        blurs.clear();
+        keep = int64_t(bank.radii().size()) * aif_t.numel() * 4 <= kMaxBytes;
+    }
+    torch::Tensor blur(size_t k, const UniformBlurBank& bank, const LensBlurParams& bp,
+                       const StackCocOptions& o) {
+        if (k < blurs.size()) return blurs[k];
+        const double rk = bank.radii()[k];
+        const int64_t H = aif_t.size(1), W = aif_t.size(2);
+        auto b = rk < bp.min_radius ? aif_t
+                 : o.direct_blur    ? lens_blur(aif_t, torch::full({H, W}, float(rk)), bp)
+                                    : bank.blur(spectrum, k);
+        if (keep && k == blurs.size()) blurs.push_back(b);
+        return b;
+    }
+};
+
+// Σ over channels of (a − b)², [C,H,W] → [1,1,H,W], in one pass.
+torch::Tensor squared_difference(const torch::Tensor& a_in, const torch::Tensor& b_in) {
+    auto a = a_in.contiguous(), b = b_in.contiguous();
+    const int64_t C = a.size(0), N = a.size(1) * a.size(2);
+    auto out = torch::empty({1, 1, a.size(1), a.size(2)});
+    const float *pa = a.data_ptr<float>(), *pb = b.data_ptr<float>();
+    float* po = out.data_ptr<float>();
+    at::parallel_for(0, N, 16384, [&](int64_t i0, int64_t i1) {
+        for (int64_t i = i0; i < i1; ++i) {
+            float acc = 0;
+            for (int64_t ch = 0; ch < C; ++ch) {
+                const float d = pa[ch * N + i] - pb[ch * N + i];
+                acc += d * d;
+            }
+            po[i] = acc;
+        }
+    });
+    return out;
+}
+
+// The running argmin over the radii's windowed costs, one pass a radius: the least and largest
+// cost, the (first) argmin, and the costs on either side of it (for the parabola).
+struct RunningArgmin {
+    torch::Tensor cmin, cmax, best, c0, c1, c2, prev;
+
+    void add(const torch::Tensor& ck_in, int64_t k) {
+        auto ck = ck_in.contiguous();
+        if (k == 0) {
+            cmin = ck.clone(), cmax = ck.clone(), prev = ck.clone();
+            c0 = ck.clone(), c1 = ck.clone(), c2 = ck.clone();
+            best = torch::zeros(ck.sizes(), torch::kLong);
+            return;
+        }
+        const float* c = ck.data_ptr<float>();
+        float *lo = cmin.data_ptr<float>(), *hi = cmax.data_ptr<float>(),
+              *pv = prev.data_ptr<float>(), *p0 = c0.data_ptr<float>(),
+              *p1 = c1.data_ptr<float>(), *p2 = c2.data_ptr<float>();
+        int64_t* bi = best.data_ptr<int64_t>();
+        at::parallel_for(0, ck.numel(), 16384, [&](int64_t i0, int64_t i1) {
+            for (int64_t i = i0; i < i1; ++i) {
+                const float v = c[i];
+                if (bi[i] == k - 1) p2[i] = v;  // the cost after the argmin so far
+                if (v < lo[i]) {                // the first least, as argmin
+                    p0[i] = pv[i];
+                    p1[i] = v;
+                    bi[i] = k;
+                    lo[i] = v;
+                }
+                hi[i] = std::max(hi[i], v);
+                pv[i] = v;
+            }
+        });
+    }
+};
+
 // 3. Frame t's radius relative to the composite: the blur of the composite that matches the
 //    frame best, locally; 4. spread from where the match is measured into flat regions. [H,W]
 torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
                               const torch::Tensor& region, int64_t t, const UniformBlurBank& bank,
-                              const StackCocOptions& o) {
+                              CompositeBlurs& blurs, const StackCocOptions& o) {
     const int64_t H = d.height, W = d.width;
-    const std::vector<double>& radii = bank.radii();
-    const int64_t K = radii.size();
-    const LensBlurParams& bp = d.blur;
-    auto aif_t = warp(c.aif.unsqueeze(0), c.to_canvas[t], H, W)[0].contiguous();
-    // Pixels whose matching window reads canvas the composite does not cover are not measured.
-    auto seen = erode(warp(c.covered, c.to_canvas[t], H, W, true).gt(0.999).to(torch::kFloat32),
-                      o.window)[0][0];
+    const int64_t K = bank.radii().size();
     // The windowed cost of each radius, one map at a time: only its running least and largest,
     // the argmin and the costs beside it (for the parabola) are kept, not K frame-sized maps.
     StageClock clock;
     clock.next("radius: blurs and costs");
-    const auto spectrum = o.direct_blur ? torch::Tensor() : bank.spectrum(aif_t);
-    torch::Tensor cmin, cmax, best, c0, c1, c2, prev;
-    for (int64_t k = 0; k < K; ++k) {
-        const double rk = radii[k];
-        auto b = rk < bp.min_radius ? aif_t
-                 : o.direct_blur    ? lens_blur(aif_t, torch::full({H, W}, float(rk)), bp)
-                                    : bank.blur(spectrum, k);
-        auto ck = box_filter((b - d.input[t]).pow(2).sum(0, true).unsqueeze(0), o.window)[0][0];
-        if (k == 0) {
-            cmin = ck, cmax = ck, prev = ck;
-            best = torch::zeros({H, W}, torch::kLong);
-            c0 = c1 = c2 = ck;
-            continue;
-        }
-        auto lower = ck < cmin;  // the first least, as argmin
-        c2 = torch::where(best == k - 1, ck, c2);
-        c0 = torch::where(lower, prev, c0);
-        c1 = torch::where(lower, ck, c1);
-        best = torch::where(lower, torch::full_like(best, k), best);
-        cmin = torch::minimum(cmin, ck);
-        cmax = torch::maximum(cmax, ck);
-        prev = ck;
-    }
+    blurs.to_frame(c, t, H, W, bank, o);
+    const torch::Tensor& seen = blurs.seen;
+    RunningArgmin run;
+    for (int64_t k = 0; k < K; ++k)
+        run.add(box_filter(squared_difference(blurs.blur(k, bank, d.blur, o), d.input[t]),
+                           o.window)[0][0],
+                k);
+    const torch::Tensor &cmin = run.cmin, &cmax = run.cmax, &best = run.best, &c0 = run.c0,
+                        &c1 = run.c1, &c2 = run.c2;
     clock.next("radius: argmin");
     // Sub-step refinement: parabola through the neighbours of the minimum.
     auto denom = (c0 - 2 * c1 + c2);
@@ -340,7 +412,9 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in,
                            double* fixed_share = nullptr) {
     const LayerComposite c = layer_composite(d, to_ref_in, region, o);
     std::vector<torch::Tensor> out;
-    for (int64_t t = 0; t < d.frames; ++t) out.push_back(relative_radius(d, c, region, t, bank, o));
+    CompositeBlurs blurs;
+    for (int64_t t = 0; t < d.frames; ++t)
+        out.push_back(relative_radius(d, c, region, t, bank, blurs, o));
     ScopedTiming timing("radius: the floor");
     if (o.absolute) add_absolute_floor(d, c, region, out, o, report, fixed_share);
     return torch::stack(out).contiguous();
