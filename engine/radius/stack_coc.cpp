@@ -250,6 +250,9 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
                               const torch::Tensor& region, int64_t t, const UniformBlurBank& bank,
                               CompositeBlurs& blurs, const StackCocOptions& o) {
     const int64_t H = d.height, W = d.width;
+    // A frame without a pixel of the layer has no evidence of blur anywhere: 0, as the spread
+    // below gives it (a subject out of the frame, or lost by its masks).
+    if (region.defined() && !(region[t][0] > 0.5).any().item<bool>()) return torch::zeros({H, W});
     const int64_t K = bank.radii().size();
     // The windowed cost of each radius, one map at a time: only its running least and largest,
     // the argmin and the costs beside it (for the parabola) are kept, not K frame-sized maps.
