@@ -170,8 +170,8 @@ struct CompositeBlurs {
         aif_t = warp(c.aif.unsqueeze(0), key, H, W)[0].contiguous();
         // Pixels whose matching window reads canvas the composite does not cover are not
         // measured.
-        seen = erode(warp(c.covered, key, H, W, true).gt(0.999).to(torch::kFloat32),
-                     o.window)[0][0];
+        seen =
+            erode(warp(c.covered, key, H, W, true).gt(0.999).to(torch::kFloat32), o.window)[0][0];
         spectrum = o.direct_blur ? torch::Tensor() : bank.spectrum(aif_t);
         blurs.clear();
         keep = int64_t(bank.radii().size()) * aif_t.numel() * 4 <= kMaxBytes;
@@ -224,8 +224,8 @@ struct RunningArgmin {
         }
         const float* c = ck.data_ptr<float>();
         float *lo = cmin.data_ptr<float>(), *hi = cmax.data_ptr<float>(),
-              *pv = prev.data_ptr<float>(), *p0 = c0.data_ptr<float>(),
-              *p1 = c1.data_ptr<float>(), *p2 = c2.data_ptr<float>();
+              *pv = prev.data_ptr<float>(), *p0 = c0.data_ptr<float>(), *p1 = c1.data_ptr<float>(),
+              *p2 = c2.data_ptr<float>();
         int64_t* bi = best.data_ptr<int64_t>();
         at::parallel_for(0, ck.numel(), 16384, [&](int64_t i0, int64_t i1) {
             for (int64_t i = i0; i < i1; ++i) {
