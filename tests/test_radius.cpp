@@ -12,6 +12,7 @@
 #include "io/clip.h"
 #include "fit/fit_setup.h"
 #include "radius/stack_coc.h"
+#include "radius/stack_costs.h"
 #include "project/project.h"
 #include "test_util.h"
 
@@ -299,4 +300,27 @@ TEST_CASE(
             << seen_later.mean().item<float>() << " px (min " << seen_later.min().item<float>()
             << "); elsewhere " << elsewhere.mean().item<float>() << " px; truth 3");
     CHECK(seen_later.min().item<float>() > 0.6f * elsewhere.mean().item<float>());
+}
+
+TEST_CASE("the focal stack's fused costs and running argmin equal their tensor-op references") {
+    torch::manual_seed(7);
+    // Costs on a coarse grid of values, so that ties (the first least wins) occur often; sizes
+    // that split unevenly over the threads.
+    const int64_t H = 67, W = 301, K = 13;
+    RunningArgmin fast, ref;
+    for (int64_t k = 0; k < K; ++k) {
+        auto ck = torch::randint(0, 6, {H, W}).to(torch::kFloat32);
+        fast.add(ck, k);
+        ref.add_reference(ck, k);
+    }
+    CHECK(torch::equal(fast.best, ref.best));
+    CHECK(torch::equal(fast.cmin, ref.cmin));
+    CHECK(torch::equal(fast.cmax, ref.cmax));
+    CHECK(torch::equal(fast.c0, ref.c0));
+    CHECK(torch::equal(fast.c1, ref.c1));
+    CHECK(torch::equal(fast.c2, ref.c2));
+    CHECK(fast.best.max().item<int64_t>() > 0);  // the argmin moved past the first radius
+    auto a = torch::rand({3, H, W}), b = torch::rand({3, H, W});
+    CHECK(torch::allclose(squared_difference(a, b), (a - b).pow(2).sum(0, true).unsqueeze(0), 1e-6,
+                          1e-7));
 }
