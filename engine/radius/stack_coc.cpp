@@ -1,6 +1,5 @@
 #include "radius/stack_coc.h"
 
-#include <ATen/Parallel.h>
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
 
@@ -154,9 +153,10 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
     return c;
 }
 
-// The composite warped onto a frame, its cover there, and its blur at each radius. A static
-// camera's frames share one warp, so their blurs are made once for the layer, not once a frame
-// (kept while they fit in kMaxBytes).
+// The composite warped onto a frame, its cover there, and its blur at each radius. Frames whose
+// warp equals the one before (homographies held at the identity) share them, kept while they fit
+// in kMaxBytes; an estimated static camera's homographies differ by hundredths of a px, and each
+// of its frames makes its own.
 struct CompositeBlurs {
     static constexpr int64_t kMaxBytes = int64_t(512) << 20;
     torch::Tensor key;  // the frame → canvas matrix the blurs were made for
