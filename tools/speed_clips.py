@@ -7,7 +7,7 @@ blurred by a disk in linear light, sigma 1 noise, H.264.
 
 writes plaza_blur.mp4 (384x288x30, 2.5 px in every frame), plaza_rack.mp4 (the same racking
 0 -> 4 px) and hd_blur.mp4 (1920x1080x240: 16:9 crop blurred 2.5 px at 768x432, scaled up with
-Lanczos)."""
+Lanczos). Needs python3-opencv and python3-numpy (Debian) and ffmpeg with libx264."""
 import subprocess
 import sys
 
