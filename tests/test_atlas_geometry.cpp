@@ -126,3 +126,39 @@ TEST_CASE(
     clean_subject_masks(e);
     CHECK(torch::equal(e.mask > 0.5, before > 0.5));
 }
+
+TEST_CASE("fuse_frames: each frame pulled in over its window equals the whole fusion there") {
+    // Three 24x20 frames translated into a 40x30 atlas, each weighted only over a patch: their
+    // windows (the patches' mapped boxes) hold every texel a weight reaches, so the fusion over
+    // windows equals the whole one wherever a frame saw, and the fallback fills the rest.
+    torch::manual_seed(4);
+    const int64_t T = 3, H = 20, W = 24, Ha = 30, Wa = 40;
+    auto src = torch::rand({T, 3, H, W});
+    auto weight = torch::zeros({T, 1, H, W});
+    std::vector<torch::Tensor> mats;
+    for (int64_t t = 0; t < T; ++t) {
+        weight[t].narrow(1, 4 + t, 6).narrow(2, 3 + 2 * t, 8).fill_(0.5 + t);
+        mats.push_back(translation(5.0 + 3.0 * t, 4.0 + 1.5 * t));
+    }
+    const auto to_atlas = torch::stack(mats).to(torch::kFloat32);
+    const auto whole = fuse_frames(to_atlas, Ha, Wa, src, weight);
+    std::vector<TexelBox> boxes;
+    for (int64_t t = 0; t < T; ++t)
+        boxes.push_back(mapped_box(to_atlas, t, 3.0 + 2 * t - 1, 4.0 + t - 1, 10.0 + 2 * t + 1,
+                                   9.0 + t + 1, 3.0, Ha, Wa));
+    CHECK(boxes[1].x0 == 4 + 8 - 3);  // x 5 − 1 mapped by +8, grown by 3
+    const auto fallback = torch::full({3, Ha, Wa}, -1.0f);
+    const auto windowed = fuse_frames(
+        to_atlas, Ha, Wa, [&](int64_t t) { return src[t]; }, [&](int64_t t) { return weight[t]; },
+        {}, [&](int64_t t) { return boxes[t]; }, fallback);
+    auto seen = torch::zeros({1, Ha, Wa});
+    for (const auto& b : boxes) seen.narrow(1, b.y0, b.h).narrow(2, b.x0, b.w).fill_(1);
+    // Where a weight reached (the rest of a window holds the fallback too).
+    const auto reached = windowed.narrow(0, 0, 1) != -1.0f;
+    CHECK(reached.sum().item<int64_t>() > 100);
+    CHECK((reached <= (seen > 0.5)).all().item<bool>());
+    CHECK((windowed - whole).abs().masked_select(reached.expand({3, Ha, Wa})).max().item<float>() <
+          1e-6f);
+    // Texels no window reaches take the fallback, not the weighted mean.
+    CHECK((windowed.masked_select((seen < 0.5).expand({3, Ha, Wa})) == -1.0f).all().item<bool>());
+}

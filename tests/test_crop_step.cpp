@@ -153,6 +153,13 @@ TEST_CASE("fast model: a window renders, and takes gradients, as the padded fram
         auto s = m.state();
         for (const char* k : {"bg_warp", "fg_warp"}) s.at(k).copy_(torch::randn_like(s.at(k)));
         s.at("alpha_logit").copy_(2.0 * torch::randn_like(s.at("alpha_logit")));
+        // Every level holds texels (a window composes the coarse ones over its box), and frames
+        // 1 and 3 see the subject 3.5 and 2.2 times smaller than its atlas (their windows are
+        // prefiltered, 3 and 1 texels' reach).
+        for (auto& [k, v] : s)
+            if (k.find("_level") != std::string::npos) v.add_(0.2 * torch::randn_like(v));
+        s.at("fg_to_atlas")[1].narrow(0, 0, 2).narrow(1, 0, 2).mul_(3.5);
+        s.at("fg_to_atlas")[3].narrow(0, 0, 2).narrow(1, 0, 2).mul_(2.2);
     }
     const std::vector<int64_t> frames{1, 3, 0};
     // Windows at the top-left margin, inside, and at the bottom-right margin of the 40x24 frame.
@@ -217,6 +224,14 @@ TEST_CASE("fast model: a window renders, and takes gradients, as the padded fram
     // The base class cuts the same windows out of render_padded.
     Layers base = m.FitModel::render_window(frames, x0, y0, h, w);
     CHECK((base.sharp - win.sharp).abs().max().item<double>() < 1e-5);
+    // TV over the windows' boxes from the render's own windows, then (none kept: priors()
+    // consumed them) from the atlas composed whole.
+    win = m.render_window(frames, x0, y0, h, w);
+    LossTerms from_windows, from_whole;
+    m.priors(win, frames, 0, from_windows);
+    m.priors(win, frames, 0, from_whole);
+    CHECK(from_windows.at("tv") > 0);
+    CHECK(from_windows.at("tv") == doctest::Approx(from_whole.at("tv")).epsilon(1e-5));
     CHECK_THROWS_WITH_AS(m.render_window({0}, {-P - 1}, {0}, h, w),
                          doctest::Contains("reaches past"), Error);
 }

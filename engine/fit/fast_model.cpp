@@ -110,7 +110,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         // the wall through its blurred edge); the reblurred sharpest views pull it back, which
         // takes corrections up to 10 px (docs/method.md, Model). A centroid track keeps 4 px.
         clock.next("set-up: align the subject", "aligning the subject's frames");
-        refine_alignment(m_fg, fg_weight, d.mask, true, d.legacy_subject_track ? 4.0 : 10.0);
+        refine_alignment(m_fg, fg_weight, d.mask, d.legacy_subject_track ? 4.0 : 10.0);
         if (std::any_of(sc.begin(), sc.end(), [](double v) { return v != 1.0; })) {
             char line[200];
             std::snprintf(
@@ -123,7 +123,9 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         }
         clock.next("set-up: fuse the subject's atlas", "fusing the subject's atlas");
         init_levels(m_fg, m_opts.restore_only ? torch::zeros({3, m_fg.height, m_fg.width})
-                                              : fuse(m_fg, fg_weight));
+                                              : fuse_regions(
+                                                    m_fg, [&](int64_t t) { return fg_weight[t]; },
+                                                    [&](int64_t t) { return d.mask[t]; }));
         clock.next("set-up: the matte", "fusing the matte");
         // Alpha (paper eq. 1): a matte shared by the frames, in the foreground atlas (half its
         // resolution), plus a per-frame residual (quarter resolution) for what moves on the
@@ -165,8 +167,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     if (!d.static_camera || m_opts.static_align) {
         const auto before = m_bg.to_atlas.clone();
         clock.next("set-up: align the background", "aligning the background's frames");
-        refine_alignment(m_bg, bg_weight, bg_region, false, d.static_camera ? 2.0 : 4.0,
-                         d.static_camera);
+        refine_alignment(m_bg, bg_weight, bg_region, d.static_camera ? 2.0 : 4.0, d.static_camera);
         // Corrections under 0.3 px are ECC's noise on a locked-off camera and are dropped: the
         // identity keeps its frames from flickering (docs/method.md, What is skipped when).
         if (d.static_camera &&
@@ -290,7 +291,8 @@ torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
 }
 
 torch::Tensor FastModel::fuse(const Atlas& a, const FrameFn& weight, const FrameFn& src,
-                              bool with_warp) const {
+                              bool with_warp, const std::function<TexelBox(int64_t)>& window,
+                              const torch::Tensor& fallback) const {
     // The margin starts as the frames' edges replicated outward, trusted 1000x less than what a
     // frame saw (a moving camera sees another frame's margin).
     const int64_t P = m_opts.pad;
@@ -311,7 +313,8 @@ torch::Tensor FastModel::fuse(const Atlas& a, const FrameFn& weight, const Frame
             const int64_t H = m_data.height, W = m_data.width;
             return (a.scale * pad_edges(upsample(a.warp[t].unsqueeze(0), H, W, true), P))[0];
         };
-    if (P == 0) return fuse_frames(a.to_atlas, a.height, a.width, src, weight, offset);
+    if (P == 0)
+        return fuse_frames(a.to_atlas, a.height, a.width, src, weight, offset, window, fallback);
     auto inside = F::pad(torch::ones({1, 1, m_data.height, m_data.width}),
                          F::PadFuncOptions({P, P, P, P}).value(1e-3));
     auto shift = translation(-P, -P).to(a.to_atlas.dtype());
@@ -319,7 +322,8 @@ torch::Tensor FastModel::fuse(const Atlas& a, const FrameFn& weight, const Frame
     return fuse_frames(
         torch::matmul(a.to_atlas, shift), a.height, a.width,
         [&](int64_t t) { return pad_edges(src(t).unsqueeze(0), P)[0]; },
-        [&](int64_t t) { return (pad_edges(weight(t).unsqueeze(0), P) * inside)[0]; }, offset);
+        [&](int64_t t) { return (pad_edges(weight(t).unsqueeze(0), P) * inside)[0]; }, offset,
+        window, fallback);
 }
 
 void FastModel::init_levels(Atlas& a, const torch::Tensor& fused) {
@@ -362,6 +366,14 @@ std::vector<ParamGroup> FastModel::param_groups() {
     return g;
 }
 
+int64_t prefilter_reach(double s) {
+    const double var = (s * s - 1.0) / 12.0;
+    if (!(var >= 0.01)) return 0;  // σ < 0.1 texel (or s ≤ 1): nothing to remove
+    // Under half a texel² a sampled Gaussian falls short of its variance (σ² 0.10: 0.016), so
+    // three taps (v/2, 1 − v, v/2) carry it exactly; past it the sampled Gaussian is within 1%.
+    return var < 0.5 ? 1 : static_cast<int64_t>(std::ceil(3 * std::sqrt(var)));
+}
+
 torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s) {
     // A frame pixel integrates the scene over its footprint, s × s texels where a layer is seen
     // s times smaller than in its atlas (a subject walking away: synth walkout's last frames,
@@ -369,11 +381,9 @@ torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s) {
     // shirt's stripes). A texel already holds its own box (variance 1/12 a side), so the
     // footprint's box (s²/12) is met by a Gaussian of the rest: σ² = (s² − 1)/12 texels².
     const double var = (s * s - 1.0) / 12.0;
-    if (!(var >= 0.01)) return image;  // σ < 0.1 texel (or s ≤ 1): nothing to remove
+    const int64_t r = prefilter_reach(s);
+    if (r == 0) return image;
     const int64_t C = image.size(1);
-    // Under half a texel² a sampled Gaussian falls short of its variance (σ² 0.10: 0.016), so
-    // three taps (v/2, 1 − v, v/2) carry it exactly; past it the sampled Gaussian is within 1%.
-    const int64_t r = var < 0.5 ? 1 : static_cast<int64_t>(std::ceil(3 * std::sqrt(var)));
     auto x = torch::arange(-r, r + 1, image.options());
     auto k = var < 0.5 ? torch::tensor({var / 2, 1 - var, var / 2}, image.options())
                        : torch::exp(-x * x / (2 * var));
@@ -385,6 +395,13 @@ torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s) {
                      F::Conv2dFuncOptions().groups(C));
 }
 
+double FastModel::footprint(int64_t t) const {
+    // Relative to the atlas's own resolution: a 2x atlas is not a minification (its texels are
+    // half a frame pixel by design).
+    auto J = m_fg.to_atlas[t].narrow(0, 0, 2).narrow(1, 0, 2).to(torch::kFloat64);
+    return std::sqrt(std::abs(torch::det(J).item<double>())) / m_fg.scale;
+}
+
 torch::Tensor FastModel::minified(const torch::Tensor& fg,
                                   const std::vector<int64_t>& frames) const {
     const int64_t B = frames.size();
@@ -392,11 +409,7 @@ torch::Tensor FastModel::minified(const torch::Tensor& fg,
     std::vector<torch::Tensor> per;
     bool any = false;
     for (int64_t b = 0; b < B; ++b) {
-        // Texels per frame pixel, relative to the atlas's own resolution (a 2x atlas is not a
-        // minification: its texels are half a frame pixel by design).
-        auto J = m_fg.to_atlas[frames[b]].narrow(0, 0, 2).narrow(1, 0, 2).to(torch::kFloat64);
-        const double s = std::sqrt(std::abs(torch::det(J).item<double>())) / m_fg.scale;
-        auto f = prefilter_for_footprint(img, s);
+        auto f = prefilter_for_footprint(img, footprint(frames[b]));
         any = any || !f.is_same(img);
         per.push_back(f[0]);
     }
@@ -425,21 +438,35 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
     auto coords = [&](const Atlas& a) {
         return pad >= 0 ? map_coords(a, frames, pad) : map_coords_window(a, frames, x0, y0, h, w);
     };
-    // The composed atlases are kept for priors() of the same step: composing costs an upsample of
-    // each coarse level forward and backward.
+    // The composed atlases (whole, or each window's part) are kept for priors() of the same
+    // step: composing costs an upsample of each coarse level forward and backward.
     const bool training = torch::GradMode::is_enabled();
-    auto bg = compose(m_bg);
-    m_composed_bg = training ? bg : torch::Tensor();
-    out.uv_bg = to_grid(m_bg, coords(m_bg));
-    out.bg = sample_bicubic(bg.expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
+    const bool windows = pad < 0;
+    m_composed_bg = m_composed_fg = torch::Tensor();
+    m_windows_bg.clear();
+    m_windows_fg.clear();
+    const auto px_bg = coords(m_bg);
+    out.uv_bg = to_grid(m_bg, px_bg);
+    if (windows) {
+        out.bg = sample_windows(m_bg, px_bg, frames, false, training ? &m_windows_bg : nullptr);
+    } else {
+        auto bg = compose(m_bg);
+        m_composed_bg = training ? bg : torch::Tensor();
+        out.bg = sample_bicubic(bg.expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
+    }
     if (!m_two_layers) {
         out.sharp = out.bg;
         return out;
     }
-    auto fg = compose(m_fg);
-    m_composed_fg = training ? fg : torch::Tensor();
-    out.uv_fg = to_grid(m_fg, coords(m_fg));
-    out.fg = sample_bicubic(minified(fg, frames), out.uv_fg);
+    const auto px_fg = coords(m_fg);
+    out.uv_fg = to_grid(m_fg, px_fg);
+    if (windows) {
+        out.fg = sample_windows(m_fg, px_fg, frames, true, training ? &m_windows_fg : nullptr);
+    } else {
+        auto fg = compose(m_fg);
+        m_composed_fg = training ? fg : torch::Tensor();
+        out.fg = sample_bicubic(minified(fg, frames), out.uv_fg);
+    }
     auto idx = torch::tensor(frames, torch::kLong);
     // The shared matte through the foreground mapping (its grid [-1,1] spans the atlas, which
     // the half-resolution matte spans too) plus the frame's residual.
@@ -462,20 +489,21 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
         update_tv_weights();
         m_tv_stale = false;
     }
-    auto bg = m_composed_bg.defined() ? m_composed_bg : compose(m_bg);
     // A layer with a deblurring path takes deblur_tv times the TV: its detail is what TV flattens.
     auto tv_factor = [&](const Atlas& a) { return a.deblur.defined() ? m_opts.deblur_tv : 1.0; };
     // Over windows (the crop step), each prior covers what the windows read only.
     const bool whole = covers_frames(layers);
-    auto atlas_tv = [&](const Atlas& a, const torch::Tensor& composed, const torch::Tensor& uv) {
-        return whole ? tv_l1(composed, a.tv_weight) : window_tv(a, composed, uv);
+    auto atlas_tv = [&](const Atlas& a, const torch::Tensor& composed,
+                        const std::vector<AtlasWindow>& wins, const torch::Tensor& uv) {
+        if (!whole) return window_tv(a, wins, uv);
+        return tv_l1(composed.defined() ? composed : compose(a), a.tv_weight);
     };
-    auto tv = tv_factor(m_bg) * atlas_tv(m_bg, bg, layers.uv_bg);
+    auto tv = tv_factor(m_bg) * atlas_tv(m_bg, m_composed_bg, m_windows_bg, layers.uv_bg);
     if (m_two_layers)
-        tv = tv + tv_factor(m_fg) *
-                      atlas_tv(m_fg, m_composed_fg.defined() ? m_composed_fg : compose(m_fg),
-                               layers.uv_fg);
+        tv = tv + tv_factor(m_fg) * atlas_tv(m_fg, m_composed_fg, m_windows_fg, layers.uv_fg);
     m_composed_bg = m_composed_fg = torch::Tensor();
+    m_windows_bg.clear();
+    m_windows_fg.clear();
     // TV in frame px: a 2x atlas's neighbours differ by half as much, so the weight scales with
     // the atlas (docs/method.md, Model).
     torch::Tensor total = m_opts.w_tv * m_bg.scale * tv;

@@ -17,6 +17,7 @@
 #include <functional>
 
 #include "model/fit_model.h"
+#include "model/atlas_geometry.h"
 
 namespace refocus {
 
@@ -92,6 +93,8 @@ struct FastModelOptions {
 // its atlas): a separable Gaussian of variance (s² − 1)/12 texels² a side, edges repeated; the
 // image itself where that is under 0.01 (s ≤ ~1.06).
 torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s);
+// How far that prefilter reaches, texels (0 where it returns the image itself).
+int64_t prefilter_reach(double s);
 
 class FastModel : public FitModel {
   public:
@@ -167,7 +170,25 @@ class FastModel : public FitModel {
     // read, as a mean like the whole frames' (fast_model_window.cpp): one that reached further
     // would move parameters no loss pulls on this step by Adam's full step (docs/method.md,
     // Crops). `uv` [B,h,w,2] is the windows' atlas grid.
-    torch::Tensor window_tv(const Atlas& a, const torch::Tensor& composed,
+    // The part of an atlas that one window reads (the crop step): texels [x0, x0 + w) ×
+    // [y0, y0 + h), composed. A 1080p atlas is some twenty crops' boxes; composing, prefiltering
+    // and sampling all of it forward and backward at every step cost the step its speed.
+    struct AtlasWindow {
+        int64_t x0 = 0, y0 = 0, w = 0, h = 0;
+        torch::Tensor composed;  // [1,3,h,w]
+    };
+    // The box that bicubic taps at atlas px [h,w,2] read, grown by `grow` texels; composed.
+    AtlasWindow compose_window(const Atlas& a, const torch::Tensor& px, int64_t grow) const;
+    // Each frame's window of `a` composed and sampled at px [B,h,w,2] ([B,3,h,w]); `minify`
+    // prefilters it for the frame's footprint (the foreground). The windows go to `keep`.
+    torch::Tensor sample_windows(const Atlas& a, const torch::Tensor& px,
+                                 const std::vector<int64_t>& frames, bool minify,
+                                 std::vector<AtlasWindow>* keep) const;
+    // Texels of the foreground atlas per frame px in frame t, over the atlas's own scale.
+    double footprint(int64_t t) const;
+    // TV over the boxes the windows read: from `wins` (the render's) where they hold the box,
+    // else from the atlas composed whole.
+    torch::Tensor window_tv(const Atlas& a, const std::vector<AtlasWindow>& wins,
                             const torch::Tensor& uv) const;
     torch::Tensor window_warp(const Atlas& a, const Layers& layers,
                               const std::vector<int64_t>& frames) const;
@@ -184,7 +205,13 @@ class FastModel : public FitModel {
     // clip-sized arrays of derived maps.
     using FrameFn = std::function<torch::Tensor(int64_t)>;
     torch::Tensor fuse(const Atlas& a, const FrameFn& weight, const FrameFn& what,
-                       bool with_warp = false) const;
+                       bool with_warp = false, const std::function<TexelBox(int64_t)>& window = {},
+                       const torch::Tensor& fallback = {}) const;
+    // The frames fused where `region(t)` ([1,H,W]) holds the layer: frames wider than the
+    // alignment's proxy are pulled in over their region's box only, and the texels no box
+    // reaches take the fusion on the proxy (fuse_frames' window and fallback). The subject of a
+    // 1080p clip is a few percent of each frame; its atlas spans its whole track.
+    torch::Tensor fuse_regions(const Atlas& a, const FrameFn& weight, const FrameFn& region) const;
     void update_tv_weights();  // each atlas's tv_weight, from the data and its geometry
     // The TV weights wait for the first priors(): a fused pass over every frame that an export
     // or a reopened project (renders only) never needs, and a resumed fit makes once.
@@ -201,7 +228,7 @@ class FastModel : public FitModel {
     // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp
     // atlas shifted by a pixel scores worse than the blurred input.
     void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                          bool affine, double max_shift, bool static_camera = false);
+                          double max_shift, bool static_camera = false);
     // Checkpoints hold each atlas's geometry (its box and per-frame mapping) beside its texels:
     // a reopened project keeps what its fit trained, even where this build would place the
     // atlas differently. A state without geometry keeps the one just computed from the data.
@@ -218,6 +245,7 @@ class FastModel : public FitModel {
     torch::Tensor m_alpha_atlas;  // [1,1,h,w] shared matte logit, foreground atlas at half size
     int64_t m_alpha_h = 0, m_alpha_w = 0;
     torch::Tensor m_composed_bg, m_composed_fg;  // of the last training render (see render_padded)
+    std::vector<AtlasWindow> m_windows_bg, m_windows_fg;  // of the last training render_window
     torch::Tensor m_boot_weight;  // [T,1,H,W] how far each mask is trusted (sharp subject: most)
 };
 

@@ -183,8 +183,40 @@ torch::Tensor FastModel::tv_weight_map(const Atlas& a, const FrameFn& radius, co
     return f.unsqueeze(0);
 }
 
+torch::Tensor FastModel::fuse_regions(const Atlas& a, const FrameFn& weight,
+                                      const FrameFn& region) const {
+    const int64_t k = proxy_factor(m_data.width, m_opts.align_width);
+    auto src = [&](int64_t t) { return m_data.input[t]; };
+    if (k == 1) return fuse(a, weight, src);
+    // A frame's box: its region grown by the widest blur (light the layer spreads past its
+    // mask) and a little, mapped into the atlas, plus the bicubic taps.
+    const double grow = double(m_opts.pad) + 8.0;
+    const int64_t T = m_data.frames;
+    std::vector<TexelBox> boxes(T);
+    int64_t texels = 0;
+    for (int64_t t = 0; t < T; ++t) {
+        const auto nz = torch::nonzero(region(t)[0] > 0.02);
+        if (nz.size(0) == 0) continue;
+        const auto lo = std::get<0>(nz.min(0)), hi = std::get<0>(nz.max(0));
+        boxes[t] = mapped_box(a.to_atlas, t, lo[1].item<double>() - grow,
+                              lo[0].item<double>() - grow, hi[1].item<double>() + grow,
+                              hi[0].item<double>() + grow, 3.0, a.height, a.width);
+        texels += boxes[t].w * boxes[t].h;
+    }
+    // Regions that fill most of the atlas anyway: the whole frames, as everywhere else.
+    if (texels > T * a.height * a.width / 2) return fuse(a, weight, src);
+    auto coarse = fuse_on_proxy(a.to_atlas, a.height, a.width, k, m_opts.pad, src, weight);
+    auto fallback =
+        F::interpolate(coarse.unsqueeze(0), F::InterpolateFuncOptions()
+                                                .size(std::vector<int64_t>{a.height, a.width})
+                                                .mode(torch::kBilinear)
+                                                .align_corners(false))[0];
+    return fuse(
+        a, weight, src, false, [&](int64_t t) { return boxes[t]; }, fallback);
+}
+
 void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                                 bool affine, double max_shift, bool static_camera) {
+                                 double max_shift, bool static_camera) {
     const int64_t T = m_data.frames, H = m_data.height, W = m_data.width;
     // ECC runs on a proxy at most align_width px wide: its window and iterations are tuned in
     // px, and the reblur's cost would grow with the square of the scale twice over. Proxy pixel
@@ -199,11 +231,11 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
         pixels = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({h * w})}, 1);
     }
     auto shrink = [&](const torch::Tensor& x) { return shrink_by(x, k); };  // [C,h,w]
-    // On a proxy the background's atlas is fused from the proxy frames too (fuse_on_proxy): the
-    // render reads nothing finer, and the fusion costs k² less; 1280×720×60: the corners
-    // land within 0.03 px (median) of the full-size fusion's. The subject's atlas is small (its
-    // fusion a fifth of the background's): it keeps the full size.
-    const bool proxy_atlas = k > 1 && !affine;
+    // On a proxy the atlas is fused from the proxy frames too (fuse_on_proxy): the render reads
+    // nothing finer, and the fusion costs k² less; 1280×720×60: the background's corners land
+    // within 0.03 px (median) of the full-size fusion's. The subject's atlas spans its track,
+    // larger than the frame on a long clip of walkers (1920×1080×240: 2.4 times the frame).
+    const bool proxy_atlas = k > 1;
     torch::Tensor proxy_px, to_proxy;  // proxy pixel grid [h·w,3]; B⁻¹·M_t·B [T,3,3]
     const int64_t ah = (a.height + k - 1) / k, aw = (a.width + k - 1) / k;
     if (proxy_atlas) {

@@ -8,6 +8,7 @@
 #include "fit/crops.h"
 #include "fit/fast_model.h"
 #include "fit/losses.h"
+#include "model/atlas_geometry.h"
 
 namespace refocus {
 
@@ -101,12 +102,59 @@ torch::Tensor FastModel::warp_smoothness(const torch::Tensor& w) {
     return dx.pow(2).mean() + dy.pow(2).mean() + 1e-3 * w.pow(2).mean();
 }
 
-torch::Tensor FastModel::window_tv(const Atlas& a, const torch::Tensor& composed,
+FastModel::AtlasWindow FastModel::compose_window(const Atlas& a, const torch::Tensor& px,
+                                                 int64_t grow) const {
+    // Bicubic taps at x read texels ⌊x⌋ − 1 … ⌊x⌋ + 2; window_tv's box (⌊x⌋ − 2 … ⌊x⌋ + 3, one
+    // more for its differences) plus a texel, as it derives x from the grid by another rounding.
+    auto p = px.detach().reshape({-1, 2});
+    auto lo = std::get<0>(p.min(0)), hi = std::get<0>(p.max(0));
+    auto span = [&](int k, int64_t n) {
+        return span_of(int64_t(std::floor(lo[k].item<double>())) - 3 - grow,
+                       int64_t(std::floor(hi[k].item<double>())) + 4 + grow, n);
+    };
+    const auto [x0, x1] = span(0, a.width);
+    const auto [y0, y1] = span(1, a.height);
+    AtlasWindow win;
+    win.x0 = x0, win.y0 = y0, win.w = x1 - x0 + 1, win.h = y1 - y0 + 1;
+    if (a.deblur.defined()) {  // the path's filter reaches further: composed whole, then cut
+        win.composed = compose(a).narrow(2, y0, win.h).narrow(3, x0, win.w);
+        return win;
+    }
+    // Each level as compose() upsamples it (bilinear, align_corners false), at the box's
+    // texels only (upsample_window: the same weights through grid_sample).
+    for (const auto& l : a.levels) {
+        auto up = l.size(2) == a.height && l.size(3) == a.width
+                      ? l.narrow(2, y0, win.h).narrow(3, x0, win.w)
+                      : upsample_window(l, a.height, a.width, {x0}, {y0}, win.h, win.w, false);
+        win.composed = win.composed.defined() ? win.composed + up : up;
+    }
+    return win;
+}
+
+torch::Tensor FastModel::sample_windows(const Atlas& a, const torch::Tensor& px,
+                                        const std::vector<int64_t>& frames, bool minify,
+                                        std::vector<AtlasWindow>* keep) const {
+    std::vector<torch::Tensor> out;
+    for (size_t b = 0; b < frames.size(); ++b) {
+        const double s = minify ? footprint(frames[b]) : 1.0;
+        // The prefilter's reach too: its replicated edge is then never read but at the atlas's.
+        AtlasWindow win = compose_window(a, px[b], prefilter_reach(s));
+        auto img = minify ? prefilter_for_footprint(win.composed, s) : win.composed;
+        auto grid = (px[b].unsqueeze(0) - torch::tensor({float(win.x0), float(win.y0)}) + 0.5) *
+                        torch::tensor({2.0f / float(win.w), 2.0f / float(win.h)}) -
+                    1.0;
+        out.push_back(sample_bicubic(img, grid)[0]);
+        if (keep) keep->push_back(std::move(win));
+    }
+    return torch::stack(out);
+}
+
+torch::Tensor FastModel::window_tv(const Atlas& a, const std::vector<AtlasWindow>& wins,
                                    const torch::Tensor& uv) const {
     // Each window's box in the atlas: the texels its bicubic taps read (uv in [-1, 1] spans
     // the atlas, texel i centred at (2i + 1)/size − 1), grown by one for the differences.
     const int64_t B = uv.size(0);
-    torch::Tensor sum = torch::zeros({});
+    torch::Tensor sum = torch::zeros({}), whole;
     for (int64_t b = 0; b < B; ++b) {
         auto px = (uv[b].detach().reshape({-1, 2}) + 1.0) *
                       torch::tensor({0.5f * float(a.width), 0.5f * float(a.height)}) -
@@ -121,7 +169,15 @@ torch::Tensor FastModel::window_tv(const Atlas& a, const torch::Tensor& composed
         const auto [y0, h] = box(1, a.height);
         auto weight =
             a.tv_weight.defined() ? a.tv_weight.narrow(2, y0, h).narrow(3, x0, w) : torch::Tensor();
-        sum = sum + tv_l1(composed.narrow(2, y0, h).narrow(3, x0, w), weight);
+        torch::Tensor texels;
+        if (size_t(b) < wins.size() && wins[b].x0 <= x0 && wins[b].y0 <= y0 &&
+            x0 + w <= wins[b].x0 + wins[b].w && y0 + h <= wins[b].y0 + wins[b].h) {
+            texels = wins[b].composed.narrow(2, y0 - wins[b].y0, h).narrow(3, x0 - wins[b].x0, w);
+        } else {  // the reference path: the atlas composed whole
+            if (!whole.defined()) whole = compose(a);
+            texels = whole.narrow(2, y0, h).narrow(3, x0, w);
+        }
+        sum = sum + tv_l1(texels, weight);
     }
     return sum / double(B);
 }

@@ -6,6 +6,7 @@
 #include "model/fit_model.h"
 #include "ops/morphology.h"
 #include "util/debug.h"
+#include "util/error.h"
 
 #include <opencv2/imgproc.hpp>
 
@@ -209,10 +210,32 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
         [&](int64_t t) { return weight[t]; });
 }
 
+TexelBox mapped_box(const torch::Tensor& to_atlas, int64_t t, double x0, double y0, double x1,
+                    double y1, double grow, int64_t height, int64_t width) {
+    auto m = to_atlas[t].to(torch::kFloat64);
+    auto c = torch::tensor({x0, x1, x0, x1, y0, y0, y1, y1, 1.0, 1.0, 1.0, 1.0}, torch::kFloat64)
+                 .view({3, 4});
+    auto p = torch::matmul(m, c);
+    auto xy = p.narrow(0, 0, 2) / p.narrow(0, 2, 1);
+    const auto lo = std::get<0>(xy.min(1)), hi = std::get<0>(xy.max(1));
+    const int64_t bx0 = std::max<int64_t>(0, int64_t(std::floor(lo[0].item<double>() - grow))),
+                  by0 = std::max<int64_t>(0, int64_t(std::floor(lo[1].item<double>() - grow))),
+                  bx1 =
+                      std::min<int64_t>(width - 1, int64_t(std::ceil(hi[0].item<double>() + grow))),
+                  by1 = std::min<int64_t>(height - 1,
+                                          int64_t(std::ceil(hi[1].item<double>() + grow)));
+    TexelBox b;
+    if (bx1 < bx0 || by1 < by0) return b;
+    b.x0 = bx0, b.y0 = by0, b.w = bx1 - bx0 + 1, b.h = by1 - by0 + 1;
+    return b;
+}
+
 torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
                           const std::function<torch::Tensor(int64_t)>& src,
                           const std::function<torch::Tensor(int64_t)>& weight,
-                          const std::function<torch::Tensor(int64_t)>& offset) {
+                          const std::function<torch::Tensor(int64_t)>& offset,
+                          const std::function<TexelBox(int64_t)>& window,
+                          const torch::Tensor& fallback) {
     namespace F = torch::nn::functional;
     const int64_t T = to_atlas.size(0);
     auto ys = torch::arange(height, torch::kFloat32), xs = torch::arange(width, torch::kFloat32);
@@ -224,6 +247,12 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
                     .padding_mode(torch::kZeros)
                     .align_corners(false);
     for (int64_t t = 0; t < T; ++t) {
+        // The whole atlas, or the frame's window of it.
+        TexelBox box{0, 0, width, height};
+        if (window) {
+            box = window(t);
+            if (box.w <= 0 || box.h <= 0) continue;
+        }
         const torch::Tensor s = src(t);
         if (!acc.defined()) {  // every frame has the first one's size
             const int64_t C = s.size(0), H = s.size(1), W = s.size(2);
@@ -231,11 +260,19 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
             ones = torch::ones({1, 1, H, W});
             scale = torch::tensor({2.0f / W, 2.0f / H});
         }
+        torch::Tensor at = pts;
+        if (window) {
+            at = pts.view({3, height, width})
+                     .narrow(1, box.y0, box.h)
+                     .narrow(2, box.x0, box.w)
+                     .reshape({3, -1});
+        }
         auto inv = torch::inverse(to_atlas[t].to(torch::kFloat64)).to(torch::kFloat32);
-        auto p = torch::matmul(inv, pts);
-        auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, height, width, 2});
+        auto p = torch::matmul(inv, at);
+        auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, box.h, box.w, 2});
         auto grid = (xy + 0.5) * scale - 1.0;
         if (offset) {
+            if (window) throw Error("fuse_frames: windows with a residual warp are not supported");
             const auto off = offset(t).unsqueeze(0);  // [1,2,H,W]
             auto border = F::GridSampleFuncOptions()
                               .mode(torch::kBilinear)
@@ -252,11 +289,14 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
         auto inside = F::grid_sample(ones, grid, opts)[0];
         auto col = sample_bicubic(s.unsqueeze(0), grid)[0];
         auto w = F::grid_sample(weight(t).unsqueeze(0), grid, opts)[0] * (inside > 0.999);
-        acc += col * w;
-        wsum += w;
+        acc.narrow(1, box.y0, box.h).narrow(2, box.x0, box.w) += col * w;
+        wsum.narrow(1, box.y0, box.h).narrow(2, box.x0, box.w) += w;
     }
-    auto mean = acc.sum({1, 2}, true) / wsum.sum().clamp_min(1e-12);
-    return torch::where(wsum > 1e-8, acc / wsum.clamp_min(1e-8), mean.expand_as(acc));
+    if (!acc.defined()) return fallback.defined() ? fallback : torch::zeros({1, height, width});
+    auto mean = fallback.defined()
+                    ? fallback
+                    : (acc.sum({1, 2}, true) / wsum.sum().clamp_min(1e-12)).expand_as(acc);
+    return torch::where(wsum > 1e-8, acc / wsum.clamp_min(1e-8), mean);
 }
 
 }  // namespace refocus

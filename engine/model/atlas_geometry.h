@@ -64,10 +64,23 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
                           const torch::Tensor& src, const torch::Tensor& weight);
 // The same with each frame's source ([C,H,W]) and weight ([1,H,W]) made on demand: a long clip's
 // derived frames (padded, weighted) then need not all exist at once.
+// A box of texels: [x0, x0 + w) × [y0, y0 + h); w = 0 is none.
+struct TexelBox {
+    int64_t x0 = 0, y0 = 0, w = 0, h = 0;
+};
 torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
                           const std::function<torch::Tensor(int64_t)>& src,
                           const std::function<torch::Tensor(int64_t)>& weight,
-                          const std::function<torch::Tensor(int64_t)>& offset = {});
+                          const std::function<torch::Tensor(int64_t)>& offset = {},
+                          const std::function<TexelBox(int64_t)>& window = {},
+                          const torch::Tensor& fallback = {});
+// With `window`, frame t is pulled into its box of the atlas only (a subject's region of a large
+// frame: the rest of the atlas would read its weight's floor alone), and atlas pixels no frame
+// reached take `fallback` ([C,height,width]; undefined: the weighted mean).
+// The box of atlas texels that frame t's pixels in [x0, x1] × [y0, y1] map to through
+// to_atlas[t] (a homography: its corners' box), grown by `grow` texels and cut to the atlas.
+TexelBox mapped_box(const torch::Tensor& to_atlas, int64_t t, double x0, double y0, double x1,
+                    double y1, double grow, int64_t height, int64_t width);
 // `offset(t)` ([2,H,W] atlas px, optional) is added to frame t's mapping at each frame pixel (a
 // residual warp): atlas pixels are pulled back through it by fixed-point iteration
 // p ← h⁻¹(a − offset(p)), exact for a warp that varies slowly against its own size.
