@@ -143,7 +143,11 @@ FitOptions quick(int64_t iters, int64_t crop_px) {
 }  // namespace
 
 TEST_CASE("fast model: a window renders, and takes gradients, as the padded frame does there") {
-    FitEngine e(moving_two_layer_data(), quick(1, 0));
+    auto o = quick(1, 0);
+    // Each frame's box of the atlases, not the whole atlas composed once (which these small
+    // atlases would take at the default share).
+    o.settings.set("fast.window_share", "1e9");
+    FitEngine e(moving_two_layer_data(), o);
     FitModel& m = e.model();
     const int64_t P = m.max_pad();
     REQUIRE(P > 0);

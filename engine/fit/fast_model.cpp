@@ -441,13 +441,13 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
     // The composed atlases (whole, or each window's part) are kept for priors() of the same
     // step: composing costs an upsample of each coarse level forward and backward.
     const bool training = torch::GradMode::is_enabled();
-    const bool windows = pad < 0;
+    const bool windows = pad < 0;  // and boxes, where they cost less than the atlas
     m_composed_bg = m_composed_fg = torch::Tensor();
     m_windows_bg.clear();
     m_windows_fg.clear();
     const auto px_bg = coords(m_bg);
     out.uv_bg = to_grid(m_bg, px_bg);
-    if (windows) {
+    if (windows && windows_pay(m_bg, px_bg, frames, false)) {
         out.bg = sample_windows(m_bg, px_bg, frames, false, training ? &m_windows_bg : nullptr);
     } else {
         auto bg = compose(m_bg);
@@ -460,7 +460,7 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
     }
     const auto px_fg = coords(m_fg);
     out.uv_fg = to_grid(m_fg, px_fg);
-    if (windows) {
+    if (windows && windows_pay(m_fg, px_fg, frames, true)) {
         out.fg = sample_windows(m_fg, px_fg, frames, true, training ? &m_windows_fg : nullptr);
     } else {
         auto fg = compose(m_fg);
@@ -495,7 +495,7 @@ torch::Tensor FastModel::priors(const Layers& layers, const std::vector<int64_t>
     const bool whole = covers_frames(layers);
     auto atlas_tv = [&](const Atlas& a, const torch::Tensor& composed,
                         const std::vector<AtlasWindow>& wins, const torch::Tensor& uv) {
-        if (!whole) return window_tv(a, wins, uv);
+        if (!whole) return window_tv(a, wins, composed, uv);
         return tv_l1(composed.defined() ? composed : compose(a), a.tv_weight);
     };
     auto tv = tv_factor(m_bg) * atlas_tv(m_bg, m_composed_bg, m_windows_bg, layers.uv_bg);

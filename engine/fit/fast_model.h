@@ -84,6 +84,10 @@ struct FastModelOptions {
     // The set-up of a model whose checkpoint is loaded next (export, the studio, `atlas`): the
     // atlases, the matte and the parallax field are not fused or fitted from the frames, since
     // the checkpoint replaces them. Training from such a set-up starts from empty atlases.
+    // A crop step reads each frame's box of an atlas where the boxes of its frames together
+    // cover under this share of the atlas: each box costs its texels, and the atlas once more
+    // in the backward (the finest level's gradient); 384x288 crops read most of theirs.
+    double window_share = 0.5;
     bool restore_only = false;
     int pad = 0;  // px of scene the atlases hold beyond each frame edge (the
                   // engine passes the largest blur support; FitModel::max_pad)
@@ -178,7 +182,11 @@ class FastModel : public FitModel {
         torch::Tensor composed;  // [1,3,h,w]
     };
     // The box that bicubic taps at atlas px [h,w,2] read, grown by `grow` texels; composed.
+    AtlasWindow window_box(const Atlas& a, const torch::Tensor& px, int64_t grow) const;
     AtlasWindow compose_window(const Atlas& a, const torch::Tensor& px, int64_t grow) const;
+    // Whether the frames' boxes (px [B,h,w,2]) cost less than composing the atlas once.
+    bool windows_pay(const Atlas& a, const torch::Tensor& px, const std::vector<int64_t>& frames,
+                     bool minify) const;
     // Each frame's window of `a` composed and sampled at px [B,h,w,2] ([B,3,h,w]); `minify`
     // prefilters it for the frame's footprint (the foreground). The windows go to `keep`.
     torch::Tensor sample_windows(const Atlas& a, const torch::Tensor& px,
@@ -187,9 +195,9 @@ class FastModel : public FitModel {
     // Texels of the foreground atlas per frame px in frame t, over the atlas's own scale.
     double footprint(int64_t t) const;
     // TV over the boxes the windows read: from `wins` (the render's) where they hold the box,
-    // else from the atlas composed whole.
+    // else from the atlas composed whole (`composed`, or composed here where undefined).
     torch::Tensor window_tv(const Atlas& a, const std::vector<AtlasWindow>& wins,
-                            const torch::Tensor& uv) const;
+                            const torch::Tensor& composed, const torch::Tensor& uv) const;
     torch::Tensor window_warp(const Atlas& a, const Layers& layers,
                               const std::vector<int64_t>& frames) const;
     torch::Tensor window_alpha_residual(const Layers& layers,

@@ -102,8 +102,8 @@ torch::Tensor FastModel::warp_smoothness(const torch::Tensor& w) {
     return dx.pow(2).mean() + dy.pow(2).mean() + 1e-3 * w.pow(2).mean();
 }
 
-FastModel::AtlasWindow FastModel::compose_window(const Atlas& a, const torch::Tensor& px,
-                                                 int64_t grow) const {
+FastModel::AtlasWindow FastModel::window_box(const Atlas& a, const torch::Tensor& px,
+                                             int64_t grow) const {
     // Bicubic taps at x read texels ⌊x⌋ − 1 … ⌊x⌋ + 2; window_tv's box (⌊x⌋ − 2 … ⌊x⌋ + 3, one
     // more for its differences) plus a texel, as it derives x from the grid by another rounding.
     auto p = px.detach().reshape({-1, 2});
@@ -116,6 +116,24 @@ FastModel::AtlasWindow FastModel::compose_window(const Atlas& a, const torch::Te
     const auto [y0, y1] = span(1, a.height);
     AtlasWindow win;
     win.x0 = x0, win.y0 = y0, win.w = x1 - x0 + 1, win.h = y1 - y0 + 1;
+    return win;
+}
+
+bool FastModel::windows_pay(const Atlas& a, const torch::Tensor& px,
+                            const std::vector<int64_t>& frames, bool minify) const {
+    int64_t texels = 0;
+    for (size_t b = 0; b < frames.size(); ++b) {
+        const auto win =
+            window_box(a, px[b], minify ? prefilter_reach(footprint(frames[b])) : int64_t(0));
+        texels += win.w * win.h;
+    }
+    return double(texels) < m_opts.window_share * double(a.width * a.height);
+}
+
+FastModel::AtlasWindow FastModel::compose_window(const Atlas& a, const torch::Tensor& px,
+                                                 int64_t grow) const {
+    AtlasWindow win = window_box(a, px, grow);
+    const int64_t x0 = win.x0, y0 = win.y0;
     if (a.deblur.defined()) {  // the path's filter reaches further: composed whole, then cut
         win.composed = compose(a).narrow(2, y0, win.h).narrow(3, x0, win.w);
         return win;
@@ -150,11 +168,11 @@ torch::Tensor FastModel::sample_windows(const Atlas& a, const torch::Tensor& px,
 }
 
 torch::Tensor FastModel::window_tv(const Atlas& a, const std::vector<AtlasWindow>& wins,
-                                   const torch::Tensor& uv) const {
+                                   const torch::Tensor& composed, const torch::Tensor& uv) const {
     // Each window's box in the atlas: the texels its bicubic taps read (uv in [-1, 1] spans
     // the atlas, texel i centred at (2i + 1)/size − 1), grown by one for the differences.
     const int64_t B = uv.size(0);
-    torch::Tensor sum = torch::zeros({}), whole;
+    torch::Tensor sum = torch::zeros({}), whole = composed;
     for (int64_t b = 0; b < B; ++b) {
         auto px = (uv[b].detach().reshape({-1, 2}) + 1.0) *
                       torch::tensor({0.5f * float(a.width), 0.5f * float(a.height)}) -

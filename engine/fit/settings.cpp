@@ -160,6 +160,9 @@ const std::vector<Field<FastModelOptions>>& fast_fields() {
          "ECC alignment rounds at initialisation (0: off)"},
         {"fast.align_width", &O::align_width, 0, 1e5,
          "... on frames shrunk to at most this wide (px; 0: full size)"},
+        {"fast.window_share", &O::window_share, 0, 1e9,
+         "a crop step composes and samples only each frame's box of an atlas where the boxes "
+         "together cover under this share of it (0: the whole atlas always)"},
         {"fast.restore_only", &O::restore_only, 0, 1,
          "the set-up fuses no atlas: a checkpoint replaces them (export and the studio set it on "
          "a fitted project)"},
