@@ -1,5 +1,6 @@
 // The fast model over windows of its frames (the fit's crop step, docs/method.md, Crops): the
-// atlas coordinates of a window's pixels, and the priors restricted to what the windows read.
+// atlas coordinates of a window's pixels, the atlas boxes they read (composed, prefiltered for a
+// subject seen smaller than in its atlas, sampled), and the priors restricted to them.
 #include <torch/torch.h>
 
 #include <algorithm>
@@ -11,6 +12,8 @@
 #include "model/atlas_geometry.h"
 
 namespace refocus {
+
+namespace F = torch::nn::functional;
 
 namespace {
 
@@ -37,6 +40,56 @@ std::pair<int64_t, int64_t> cells_read(int64_t from, int64_t len, int64_t L, int
 }
 
 }  // namespace
+
+int64_t prefilter_reach(double s) {
+    const double var = (s * s - 1.0) / 12.0;
+    if (!(var >= 0.01)) return 0;  // σ < 0.1 texel (or s ≤ 1): nothing to remove
+    // Under half a texel² a sampled Gaussian falls short of its variance (σ² 0.10: 0.016), so
+    // three taps (v/2, 1 − v, v/2) carry it exactly; past it the sampled Gaussian is within 1%.
+    return var < 0.5 ? 1 : static_cast<int64_t>(std::ceil(3 * std::sqrt(var)));
+}
+
+torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s) {
+    // A frame pixel integrates the scene over its footprint, s × s texels where a layer is seen
+    // s times smaller than in its atlas (a subject walking away: synth walkout's last frames,
+    // s ≈ 2.5). Sampling the atlas there without prefiltering aliases its fine texture (the
+    // shirt's stripes). A texel already holds its own box (variance 1/12 a side), so the
+    // footprint's box (s²/12) is met by a Gaussian of the rest: σ² = (s² − 1)/12 texels².
+    const double var = (s * s - 1.0) / 12.0;
+    const int64_t r = prefilter_reach(s);
+    if (r == 0) return image;
+    const int64_t C = image.size(1);
+    auto x = torch::arange(-r, r + 1, image.options());
+    auto k = var < 0.5 ? torch::tensor({var / 2, 1 - var, var / 2}, image.options())
+                       : torch::exp(-x * x / (2 * var));
+    k = k / k.sum();
+    auto img = F::pad(image, F::PadFuncOptions({r, r, r, r}).mode(torch::kReplicate));
+    img = F::conv2d(img, k.view({1, 1, 1, -1}).expand({C, 1, 1, 2 * r + 1}),
+                    F::Conv2dFuncOptions().groups(C));
+    return F::conv2d(img, k.view({1, 1, -1, 1}).expand({C, 1, 2 * r + 1, 1}),
+                     F::Conv2dFuncOptions().groups(C));
+}
+
+double FastModel::footprint(int64_t t) const {
+    // Relative to the atlas's own resolution: a 2x atlas is not a minification (its texels are
+    // half a frame pixel by design).
+    auto J = m_fg.to_atlas[t].narrow(0, 0, 2).narrow(1, 0, 2).to(torch::kFloat64);
+    return std::sqrt(std::abs(torch::det(J).item<double>())) / m_fg.scale;
+}
+
+torch::Tensor FastModel::minified(const torch::Tensor& fg,
+                                  const std::vector<int64_t>& frames) const {
+    const int64_t B = frames.size();
+    const auto img = fg.view({1, 3, m_fg.height, m_fg.width});
+    std::vector<torch::Tensor> per;
+    bool any = false;
+    for (int64_t b = 0; b < B; ++b) {
+        auto f = prefilter_for_footprint(img, footprint(frames[b]));
+        any = any || !f.is_same(img);
+        per.push_back(f[0]);
+    }
+    return any ? torch::stack(per) : img.expand({B, 3, m_fg.height, m_fg.width});
+}
 
 bool FastModel::covers_frames(const Layers& layers) const {
     const int64_t H = m_data.height, W = m_data.width;
