@@ -6,8 +6,8 @@ blurred by a disk in linear light, sigma 1 noise, H.264.
     tools/speed_clips.py <vtest.avi> <out-dir>
 
 writes plaza_blur.mp4 (384x288x30, 2.5 px in every frame), plaza_rack.mp4 (the same racking
-0 -> 4 px) and hd_blur.mp4 (1920x1080x240: 16:9 crop blurred 2.5 px at 768x432, scaled up with
-Lanczos). Needs python3-opencv and python3-numpy (Debian) and ffmpeg with libx264."""
+0 -> 4 px), hd_blur.mp4 (1920x1080x240: 16:9 crop blurred 2.5 px at 768x432, scaled up with
+Lanczos) and hd30.mp4 (its first 30 frames, decoded and encoded again). Needs python3-opencv and python3-numpy (Debian) and ffmpeg with libx264."""
 import subprocess
 import sys
 
@@ -72,6 +72,10 @@ def main():
                               interpolation=cv2.INTER_LANCZOS4)
     write(out + '/hd_blur.mp4', (1920, 1080), 24, 18,
           (noisy(hd(f), t) for t, f in frames(avi, 240)))
+    if subprocess.call(['ffmpeg', '-y', '-loglevel', 'error', '-i', out + '/hd_blur.mp4', '-frames:v',
+                        '30', '-c:v', 'libx264', '-crf', '18', '-pix_fmt', 'yuv420p',
+                        out + '/hd30.mp4']) != 0:
+        sys.exit('speed_clips.py: ffmpeg failed on ' + out + '/hd30.mp4')
 
 
 if __name__ == '__main__':
