@@ -397,8 +397,9 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
     m_windows_fg.clear();
     const auto px_bg = coords(m_bg);
     out.uv_bg = to_grid(m_bg, px_bg);
-    if (windows && windows_pay(m_bg, px_bg, frames, false)) {
-        out.bg = sample_windows(m_bg, px_bg, frames, false, training ? &m_windows_bg : nullptr);
+    auto wins = windows ? paying_windows(m_bg, px_bg, frames, false) : std::vector<AtlasWindow>{};
+    if (!wins.empty()) {
+        out.bg = sample_windows(m_bg, px_bg, std::move(wins), training ? &m_windows_bg : nullptr);
     } else {
         auto bg = compose(m_bg);
         m_composed_bg = training ? bg : torch::Tensor();
@@ -410,8 +411,9 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
     }
     const auto px_fg = coords(m_fg);
     out.uv_fg = to_grid(m_fg, px_fg);
-    if (windows && windows_pay(m_fg, px_fg, frames, true)) {
-        out.fg = sample_windows(m_fg, px_fg, frames, true, training ? &m_windows_fg : nullptr);
+    wins = windows ? paying_windows(m_fg, px_fg, frames, true) : std::vector<AtlasWindow>{};
+    if (!wins.empty()) {
+        out.fg = sample_windows(m_fg, px_fg, std::move(wins), training ? &m_windows_fg : nullptr);
     } else {
         auto fg = compose(m_fg);
         m_composed_fg = training ? fg : torch::Tensor();

@@ -179,18 +179,20 @@ class FastModel : public FitModel {
     // and sampling all of it forward and backward at every step cost the step its speed.
     struct AtlasWindow {
         int64_t x0 = 0, y0 = 0, w = 0, h = 0;
+        double footprint = 1;    // texels per frame px the box is prefiltered for (1: none)
         torch::Tensor composed;  // [1,3,h,w]
     };
-    // The box that bicubic taps at atlas px [h,w,2] read, grown by `grow` texels; composed.
+    // The box that bicubic taps at atlas px [h,w,2] read, grown by `grow` texels.
     AtlasWindow window_box(const Atlas& a, const torch::Tensor& px, int64_t grow) const;
-    AtlasWindow compose_window(const Atlas& a, const torch::Tensor& px, int64_t grow) const;
-    // Whether the frames' boxes (px [B,h,w,2]) cost less than composing the atlas once.
-    bool windows_pay(const Atlas& a, const torch::Tensor& px, const std::vector<int64_t>& frames,
-                     bool minify) const;
-    // Each frame's window of `a` composed and sampled at px [B,h,w,2] ([B,3,h,w]); `minify`
-    // prefilters it for the frame's footprint (the foreground). The windows go to `keep`.
+    // The frames' boxes of `a` (px [B,h,w,2]; `minify`: grown by the foreground's prefilter) where
+    // together they cover under fast.window_share of it, else none (compose the atlas whole).
+    std::vector<AtlasWindow> paying_windows(const Atlas& a, const torch::Tensor& px,
+                                            const std::vector<int64_t>& frames, bool minify) const;
+    void compose_window(const Atlas& a, AtlasWindow& win) const;  // fills win.composed
+    // Each window composed, prefiltered for its footprint and sampled at px [B,h,w,2]
+    // ([B,3,h,w]); the composed windows go to `keep`.
     torch::Tensor sample_windows(const Atlas& a, const torch::Tensor& px,
-                                 const std::vector<int64_t>& frames, bool minify,
+                                 std::vector<AtlasWindow> wins,
                                  std::vector<AtlasWindow>* keep) const;
     // Texels of the foreground atlas per frame px in frame t, over the atlas's own scale.
     double footprint(int64_t t) const;

@@ -36,6 +36,15 @@ torch::Tensor shrink_by(const torch::Tensor& x, int64_t k) {
     return torch::avg_pool2d(x.narrow(1, 0, h * k).narrow(2, 0, w * k).unsqueeze(0), k)[0];
 }
 
+// A proxy fusion [C,h,w] bilinearly up to the atlas's H × W (align_corners false: proxy texel j
+// is the mean of atlas texels kj … kj + k − 1, centred at kj + (k − 1)/2).
+torch::Tensor proxy_to_atlas(const torch::Tensor& x, int64_t H, int64_t W) {
+    return F::interpolate(x.unsqueeze(0), F::InterpolateFuncOptions()
+                                              .size(std::vector<int64_t>{H, W})
+                                              .mode(torch::kBilinear)
+                                              .align_corners(false))[0];
+}
+
 // B⁻¹·M_t·B [T,3,3] float64: frame proxy pixel → atlas proxy texel, B the proxy's scale (proxy
 // pixel x_p is the frame's k·x_p + (k − 1)/2, and so for the atlas).
 torch::Tensor proxy_mapping(const torch::Tensor& to_atlas, int64_t k) {
@@ -175,11 +184,7 @@ torch::Tensor FastModel::tv_weight_map(const Atlas& a, const FrameFn& radius, co
     }
     auto f = tv_radius_factor(sharp, moments.narrow(0, 0, 1), moments.narrow(0, 1, 1),
                               m_opts.tv_radius_gain, cap, m_opts.tv_radius_spread, fade);
-    if (k > 1)
-        f = F::interpolate(f.unsqueeze(0), F::InterpolateFuncOptions()
-                                               .size(std::vector<int64_t>{a.height, a.width})
-                                               .mode(torch::kBilinear)
-                                               .align_corners(false))[0];
+    if (k > 1) f = proxy_to_atlas(f, a.height, a.width);
     return f.unsqueeze(0);
 }
 
@@ -205,12 +210,9 @@ torch::Tensor FastModel::fuse_regions(const Atlas& a, const FrameFn& weight,
     }
     // Regions that fill most of the atlas anyway: the whole frames, as everywhere else.
     if (texels > T * a.height * a.width / 2) return fuse(a, weight, src);
-    auto coarse = fuse_on_proxy(a.to_atlas, a.height, a.width, k, m_opts.pad, src, weight);
-    auto fallback =
-        F::interpolate(coarse.unsqueeze(0), F::InterpolateFuncOptions()
-                                                .size(std::vector<int64_t>{a.height, a.width})
-                                                .mode(torch::kBilinear)
-                                                .align_corners(false))[0];
+    const auto fallback =
+        proxy_to_atlas(fuse_on_proxy(a.to_atlas, a.height, a.width, k, m_opts.pad, src, weight),
+                       a.height, a.width);
     return fuse(
         a, weight, src, false, [&](int64_t t) { return boxes[t]; }, fallback);
 }

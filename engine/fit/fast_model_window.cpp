@@ -172,51 +172,52 @@ FastModel::AtlasWindow FastModel::window_box(const Atlas& a, const torch::Tensor
     return win;
 }
 
-bool FastModel::windows_pay(const Atlas& a, const torch::Tensor& px,
-                            const std::vector<int64_t>& frames, bool minify) const {
+std::vector<FastModel::AtlasWindow> FastModel::paying_windows(const Atlas& a,
+                                                              const torch::Tensor& px,
+                                                              const std::vector<int64_t>& frames,
+                                                              bool minify) const {
+    // A deblurring path's filter reaches past any box: its atlas is composed whole.
+    if (a.deblur.defined()) return {};
+    std::vector<AtlasWindow> wins;
     int64_t texels = 0;
-    for (size_t b = 0; b < frames.size(); ++b) {
-        const auto win =
-            window_box(a, px[b], minify ? prefilter_reach(footprint(frames[b])) : int64_t(0));
-        texels += win.w * win.h;
-    }
-    return double(texels) < m_opts.window_share * double(a.width * a.height);
-}
-
-FastModel::AtlasWindow FastModel::compose_window(const Atlas& a, const torch::Tensor& px,
-                                                 int64_t grow) const {
-    AtlasWindow win = window_box(a, px, grow);
-    const int64_t x0 = win.x0, y0 = win.y0;
-    if (a.deblur.defined()) {  // the path's filter reaches further: composed whole, then cut
-        win.composed = compose(a).narrow(2, y0, win.h).narrow(3, x0, win.w);
-        return win;
-    }
-    // Each level as compose() upsamples it (bilinear, align_corners false), at the box's
-    // texels only (upsample_window: the same weights through grid_sample).
-    for (const auto& l : a.levels) {
-        auto up = l.size(2) == a.height && l.size(3) == a.width
-                      ? l.narrow(2, y0, win.h).narrow(3, x0, win.w)
-                      : upsample_window(l, a.height, a.width, {x0}, {y0}, win.h, win.w, false);
-        win.composed = win.composed.defined() ? win.composed + up : up;
-    }
-    return win;
-}
-
-torch::Tensor FastModel::sample_windows(const Atlas& a, const torch::Tensor& px,
-                                        const std::vector<int64_t>& frames, bool minify,
-                                        std::vector<AtlasWindow>* keep) const {
-    std::vector<torch::Tensor> out;
     for (size_t b = 0; b < frames.size(); ++b) {
         const double s = minify ? footprint(frames[b]) : 1.0;
         // The prefilter's reach too: its replicated edge is then never read but at the atlas's.
-        AtlasWindow win = compose_window(a, px[b], prefilter_reach(s));
-        auto img = minify ? prefilter_for_footprint(win.composed, s) : win.composed;
+        wins.push_back(window_box(a, px[b], prefilter_reach(s)));
+        wins.back().footprint = s;
+        texels += wins.back().w * wins.back().h;
+    }
+    if (!(double(texels) < m_opts.window_share * double(a.width * a.height))) return {};
+    return wins;
+}
+
+void FastModel::compose_window(const Atlas& a, AtlasWindow& win) const {
+    // Each level as compose() upsamples it (bilinear, align_corners false), at the box's
+    // texels only (upsample_window: the same weights through grid_sample).
+    win.composed = torch::Tensor();
+    for (const auto& l : a.levels) {
+        auto up =
+            l.size(2) == a.height && l.size(3) == a.width
+                ? l.narrow(2, win.y0, win.h).narrow(3, win.x0, win.w)
+                : upsample_window(l, a.height, a.width, {win.x0}, {win.y0}, win.h, win.w, false);
+        win.composed = win.composed.defined() ? win.composed + up : up;
+    }
+}
+
+torch::Tensor FastModel::sample_windows(const Atlas& a, const torch::Tensor& px,
+                                        std::vector<AtlasWindow> wins,
+                                        std::vector<AtlasWindow>* keep) const {
+    std::vector<torch::Tensor> out;
+    for (size_t b = 0; b < wins.size(); ++b) {
+        AtlasWindow& win = wins[b];
+        compose_window(a, win);
+        auto img = prefilter_for_footprint(win.composed, win.footprint);
         auto grid = (px[b].unsqueeze(0) - torch::tensor({float(win.x0), float(win.y0)}) + 0.5) *
                         torch::tensor({2.0f / float(win.w), 2.0f / float(win.h)}) -
                     1.0;
         out.push_back(sample_bicubic(img, grid)[0]);
-        if (keep) keep->push_back(std::move(win));
     }
+    if (keep) *keep = std::move(wins);
     return torch::stack(out);
 }
 
