@@ -14,6 +14,7 @@
 #include "io/image_file.h"
 #include "io/tensor_image.h"
 #include "metrics/metrics.h"
+#include "model/atlas_geometry.h"
 #include "project/project.h"
 #include "util/error.h"
 #include "util/mapped.h"
@@ -323,4 +324,102 @@ TEST_CASE("a fitted project opens from its checkpoint without aligning again: th
         INFO("frame " << t);
         CHECK(psnr(skipped[t], full[t]) > 60.0);
     }
+}
+
+namespace {
+bool said(const PrepareLog& l, const std::string& s) {
+    for (const auto& line : l.lines())
+        if (line.find(s) != std::string::npos) return true;
+    return false;
+}
+}  // namespace
+
+TEST_CASE("a long clip keeps its arrays for the next command: the same data, the same fit") {
+    // The budget at 0 MB makes every clip "long": its arrays stream through file mappings and
+    // are kept in work/clip/ (model/clip_cache.h). The next opening maps them instead of making
+    // them again, and must give the data and the fit bit for bit.
+    TinyClip c = make_tiny("clip_cache", "rack", "160x90");
+    const Project p = Project::load(c.project);
+    FitSetupOptions mapped;
+    mapped.memory_mb = 0;
+    PrepareLog log_a, log_b;
+    auto a = build_fit_data(p, mapped, log_a);
+    const fs::path kept = c.project / "work" / "clip";
+    REQUIRE(fs::exists(kept / "clip.json"));
+    CHECK_FALSE(said(log_a, "as the last command kept them"));
+    auto b = build_fit_data(p, mapped, log_b);
+    INFO(log_b.lines().back());
+    CHECK(said(log_b, "as the last command kept them"));
+    CHECK(b->finite_checked);
+    CHECK(torch::equal(a->input, b->input));
+    CHECK(torch::equal(a->radius, b->radius));
+    CHECK(torch::equal(a->to_ref, b->to_ref));
+    CHECK(a->static_camera == b->static_camera);
+    CHECK(a->fixed_focus_share == b->fixed_focus_share);
+    CHECK(a->atlas_scale == b->atlas_scale);
+    REQUIRE(a->has_subject == b->has_subject);
+    REQUIRE(a->has_subject);  // walkout: the subject's masks, its track and its layer radius
+    CHECK(torch::equal(a->mask, b->mask));
+    REQUIRE(a->flow_fwd.defined() == b->flow_fwd.defined());
+    if (a->flow_fwd.defined()) CHECK(torch::equal(a->flow_fwd, b->flow_fwd));
+    // The kept track is the one the masks and flow give.
+    std::vector<double> ax, ay, as, bx, by, bs;
+    subject_track(*b, bx, by, &bs);
+    FitData fresh = *b;
+    fresh.track_memo.clear();
+    subject_track(fresh, ax, ay, &as);
+    CHECK(ax == bx);
+    CHECK(ay == by);
+    CHECK(as == bs);
+    // Kept arrays are mapped read-only: nothing of this command writes into another's.
+    CHECK(is_mapped(b->input));
+    FitOptions o;
+    o.preset = "fast";
+    o.iters = 5;
+    o.seed = 3;
+    FitEngine ea(a, o), eb(b, o);
+    REQUIRE(fs::exists(kept / "radius_fg.json"));
+    CHECK(torch::equal(a->radius_fg, b->radius_fg));
+    CHECK(torch::equal(a->radius_bg, b->radius_bg));
+    for (int i = 0; i < 5; ++i) {
+        ea.step();
+        eb.step();
+    }
+    for (int t : {0, 7}) CHECK(torch::equal(ea.render_frame(t).sharp, eb.render_frame(t).sharp));
+
+    // Other data, or a damaged file, make them again.
+    FitSetupOptions other = mapped;
+    other.settings.set("radius.floor_max", "50");
+    PrepareLog log_c;
+    build_fit_data(p, other, log_c);
+    CHECK_FALSE(said(log_c, "as the last command kept them"));
+    fs::resize_file(kept / "input.f32", 1000);
+    PrepareLog log_d;
+    auto d = build_fit_data(p, other, log_d);
+    CHECK_FALSE(said(log_d, "as the last command kept them"));
+    CHECK(torch::equal(d->input, a->input));
+    // fit.clip_cache 0: nothing kept, nothing read.
+    fs::remove_all(kept);
+    FitSetupOptions off = mapped;
+    off.clip_cache = false;
+    PrepareLog log_e;
+    build_fit_data(p, off, log_e);
+    CHECK_FALSE(fs::exists(kept / "clip.json"));
+}
+
+TEST_CASE("a fitted long clip exports the same frames from its kept arrays as made again") {
+    TinyClip c = make_tiny("clip_cache_export", "rack", "160x90");
+    auto r = cli("fit '" + c.project.string() + "' --iters 12 --set fit.memory_mb=0");
+    INFO(r.output);
+    REQUIRE(r.code == 0);
+    const fs::path manifest = c.project / "work" / "clip" / "clip.json";
+    REQUIRE(fs::exists(manifest));
+    const auto kept_at = fs::last_write_time(manifest);
+    const std::vector<Image> kept = export_sharp(c, "kept");
+    CHECK(fs::last_write_time(manifest) == kept_at);  // opened from them, not made again
+    fs::remove_all(c.project / "work" / "clip");
+    const std::vector<Image> made = export_sharp(c, "made");
+    CHECK(fs::exists(manifest));  // made again, and kept
+    REQUIRE(kept.size() == made.size());
+    for (size_t t = 0; t < made.size(); ++t) CHECK(max_abs_diff(kept[t], made[t]) == 0.0);
 }

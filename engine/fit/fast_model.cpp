@@ -74,18 +74,24 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
 
     torch::NoGradGuard no_grad;
     // Derived per-frame maps are made frame by frame into clip arrays (FitData::per_frame): a
-    // long clip's would otherwise be clip-sized temporaries.
+    // long clip's would otherwise be clip-sized temporaries. Restoring from a checkpoint (its
+    // atlases and alignment replace the set-up's) reads none of them unless it aligns, or makes
+    // the deblurring path or the flow's warps again: a long clip's are minutes of writing.
+    const bool weights =
+        !opts.restore_only || opts.align_rounds > 0 || opts.deblur_path || opts.flow_warp;
+    auto maybe = [&](const std::function<torch::Tensor(int64_t)>& fn) {
+        return weights ? d.per_frame(fn) : torch::Tensor();
+    };
     const auto sharpness =
-        d.per_frame([&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); });
+        maybe([&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); });
     m_two_layers = d.has_subject && d.mask.defined();
     debug_memory("fast model: weights");
     torch::Tensor bg_weight = sharpness;
     // Where each layer is seen: the mask's complement, or everywhere with one layer.
-    const auto bg_region = d.per_frame(
+    const auto bg_region = maybe(
         [&](int64_t t) { return m_two_layers ? 1.0 - d.mask[t] : torch::ones_like(sharpness[t]); });
     if (m_two_layers) {
-        bg_weight =
-            d.per_frame([&](int64_t t) { return sharpness[t] * bg_region[t].clamp_min(1e-3); });
+        bg_weight = maybe([&](int64_t t) { return sharpness[t] * bg_region[t].clamp_min(1e-3); });
         // Foreground mapping: translate so that each frame's subject centroid lands on one point.
         std::vector<double> vx, vy, sc;
         subject_track(d, vx, vy, &sc);
@@ -105,7 +111,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         rescale(m_fg, opts.atlas_scale);
         m_fg.warp = torch::zeros({T, 2, gh, gw});
         const auto fg_weight =
-            d.per_frame([&](int64_t t) { return sharpness[t] * d.mask[t].clamp_min(1e-3); });
+            maybe([&](int64_t t) { return sharpness[t] * d.mask[t].clamp_min(1e-3); });
         // The subject's track may be off by a few px where the focus crosses it (its flow sees
         // the wall through its blurred edge); the reblurred sharpest views pull it back, which
         // takes corrections up to 10 px (docs/method.md, Model). A centroid track keeps 4 px.
@@ -153,12 +159,6 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                       [&](int64_t t) { return (subject_r[t] + 0.5).pow(-4.0); });
         m_alpha_atlas = torch::logit(fused_mask.unsqueeze(0).clamp(0.01, 0.99));
         m_alpha_logit = torch::zeros({T, 1, (H + 3) / 4, (W + 3) / 4});
-        // The masks are trusted as much as the subject is sharp there (1 at r = 0, 0.2 at 4 px,
-        // 0.07 at 7 px), in absolute terms: automatic masks of a blurred subject are blobs its
-        // blur widens, and a subject never in focus earns no trust by being the clip's sharpest
-        // (docs/method.md, Model).
-        m_boot_weight =
-            d.per_frame([&](int64_t t) { return 1.0 / (1.0 + (subject_r[t] / 2.0).pow(2)); });
     }
     // A camera judged static (corners move < 2 px, prepare) maps every frame by the identity, as
     // its feature homographies are mostly noise (a focus change alone moves features). A

@@ -169,6 +169,8 @@ class FastModel : public FitModel {
     // Whether `layers` cover whole frames (render_padded), not windows (render_window).
     bool covers_frames(const Layers& layers) const;
     // The mask bootstrap's L1 over the part of the rendered layers that lies in the frame.
+    // How far the masks are trusted where the subject's radius is `subject_r` (sharp: most).
+    static torch::Tensor boot_weight(const torch::Tensor& subject_r);
     torch::Tensor bootstrap_l1(const Layers& layers, const std::vector<int64_t>& frames) const;
     // Over windows, each prior covers the part of an atlas or a per-frame grid that the windows
     // read, as a mean like the whole frames' (fast_model_window.cpp): one that reached further
@@ -256,7 +258,6 @@ class FastModel : public FitModel {
     int64_t m_alpha_h = 0, m_alpha_w = 0;
     torch::Tensor m_composed_bg, m_composed_fg;  // of the last training render (see render_padded)
     std::vector<AtlasWindow> m_windows_bg, m_windows_fg;  // of the last training render_window
-    torch::Tensor m_boot_weight;  // [T,1,H,W] how far each mask is trusted (sharp subject: most)
 };
 
 }  // namespace refocus

@@ -115,6 +115,15 @@ torch::Tensor FastModel::map_coords_window(const Atlas& a, const std::vector<int
     return add_parallax(a, idx, px).permute({0, 2, 3, 1});
 }
 
+torch::Tensor FastModel::boot_weight(const torch::Tensor& subject_r) {
+    // The masks are trusted as much as the subject is sharp there (1 at r = 0, 0.2 at 4 px,
+    // 0.07 at 7 px), in absolute terms: automatic masks of a blurred subject are blobs its blur
+    // widens, and a subject never in focus earns no trust by being the clip's sharpest
+    // (docs/method.md, Model). Made for the step's frames: a clip array of it is minutes of
+    // writing on a long clip.
+    return 1.0 / (1.0 + (subject_r / 2.0).pow(2));
+}
+
 torch::Tensor FastModel::bootstrap_l1(const Layers& layers,
                                       const std::vector<int64_t>& frames) const {
     const int64_t H = m_data.height, W = m_data.width, h = layers.alpha.size(2),
@@ -124,7 +133,7 @@ torch::Tensor FastModel::bootstrap_l1(const Layers& layers,
     if (covers_frames(layers)) {  // whole frames (render_padded)
         auto alpha = layers.alpha.narrow(2, pad, H).narrow(3, pad, W);
         return ((alpha - m_data.mask.index_select(0, idx)).abs() *
-                m_boot_weight.index_select(0, idx))
+                boot_weight(m_data.layer_radius(true).index_select(0, idx).unsqueeze(1)))
             .mean();
     }
     // Windows (render_window): each frame's part inside the frame, averaged over all of them.
@@ -143,7 +152,8 @@ torch::Tensor FastModel::bootstrap_l1(const Layers& layers,
                      .narrow(1, fy0 - layers.y0[b], fy1 - fy0)
                      .narrow(2, fx0 - layers.x0[b], fx1 - fx0);
         const int64_t t = frames[b];
-        sum = sum + ((a - in_frame(m_data.mask[t])).abs() * in_frame(m_boot_weight[t])).sum();
+        const auto r = in_frame(m_data.layer_radius(true)[t].unsqueeze(0));
+        sum = sum + ((a - in_frame(m_data.mask[t])).abs() * boot_weight(r)).sum();
         n += (fx1 - fx0) * (fy1 - fy0);
     }
     return sum / double(std::max<int64_t>(n, 1));

@@ -17,6 +17,7 @@
 #include "io/image_file.h"
 #include "ops/morphology.h"
 #include "util/debug.h"
+#include "model/clip_cache.h"
 #include "util/timing.h"
 #include "util/error.h"
 
@@ -57,13 +58,7 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
         torch::NoGradGuard g;
         // Frame by frame: a long clip's arrays are file mappings (util/mapped.h), and a check
         // over the whole clip at once would hold a clip-sized temporary.
-        for (int64_t t = 0; t < m_data->frames; ++t) {
-            if (!torch::isfinite(m_data->input[t]).all().item<bool>())
-                throw Error("fit: the input frames contain NaN/Inf");
-            if (!torch::isfinite(m_data->radius[t]).all().item<bool>() ||
-                (m_data->radius[t] < 0).any().item<bool>())
-                throw Error("fit: the radius maps contain NaN/Inf or negative values");
-        }
+        if (!m_data->finite_checked) check_finite(*m_data);
         m_resid = m_data->clip_array({m_data->frames, 1, m_data->height, m_data->width});
         m_resid.fill_(-1.0f);
     }
@@ -77,7 +72,7 @@ void FitEngine::build_model() {
         StageClock clock;
         clock.next("set-up: each layer's radius", "each layer's radius");
         if (m_opts.layer_radius && atlas)
-            split_radius_by_layer(*m_data);
+            split_layer_radius();
         else
             m_data->radius_fg = m_data->radius_bg = torch::Tensor();
     }
@@ -114,6 +109,30 @@ void FitEngine::build_model() {
         m_model->notes.push_back("fit: whole frames a step: the " + m_opts.preset +
                                  " model renders no margin beyond the frame, which crops need");
     make_optimizer();
+}
+
+void FitEngine::split_layer_radius() {
+    FitData& d = *m_data;
+    // A long clip's last command may have kept the split (model/clip_cache.h): it follows from
+    // the clip's kept arrays, and from the cleaned masks (a legacy checkpoint's are the stored).
+    const bool keep =
+        !d.cache_key.empty() && d.has_subject && d.mask.defined() && !d.legacy_track_gaps;
+    const std::string key = d.cache_key + "/layers-v1";
+    if (keep) {
+        auto fg = kept_clip_array(d, "radius_fg", d.radius.sizes(), key),
+             bg = kept_clip_array(d, "radius_bg", d.radius.sizes(), key);
+        if (fg.defined() && bg.defined()) {
+            d.radius_fg = fg, d.radius_bg = bg;
+            return;
+        }
+    }
+    split_radius_by_layer(d);
+    if (keep) try {
+            keep_clip_array(d, "radius_fg", d.radius_fg, key);
+            keep_clip_array(d, "radius_bg", d.radius_bg, key);
+        } catch (const std::exception&) {
+            // a full disk: the next command splits them again
+        }
 }
 
 FitEngine::~FitEngine() = default;

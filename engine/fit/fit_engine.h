@@ -261,6 +261,8 @@ class FitEngine {
     // maps and its optimiser; again when a checkpoint asks for another subject track or atlas
     // scale.
     void build_model();
+    // Each layer's radius (split_radius_by_layer), or the split a long clip's last command kept.
+    void split_layer_radius();
     void make_optimizer();
     double budget_fraction() const;
     void step_self();  // a model that steps itself (FitModel::steps_itself)

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "model/atlas_geometry.h"
+#include "fit/kept_clip.h"
 #include "radius/stack_coc.h"
 #include "io/tensor_image.h"
 #include "io/image_file.h"
@@ -23,6 +24,7 @@
 #include "util/mapped.h"
 #include "util/debug.h"
 #include "util/error.h"
+#include "util/timing.h"
 
 namespace refocus {
 
@@ -86,7 +88,7 @@ torch::Tensor load_stack_radius(const Project& project, const FitData& d, const 
         const auto j = nlohmann::json::parse(read_text_file(meta));
         if (j.value("key", "") != key) return {};
         fixed_focus_share = j.value("fixed_focus_share", 0.0);
-        torch::Tensor maps = d.clip_array({d.frames, d.height, d.width});
+        torch::Tensor maps = d.clip_array({d.frames, d.height, d.width}, "radius");
         for (int t = 0; t < d.frames; ++t) {
             Image m = read_image_file(stack_frame_path(project, t).string(), false).image;
             if (m.width != d.width || m.height != d.height || m.channels != 1) return {};
@@ -169,7 +171,10 @@ std::string choose_atlas_scale(FitData& d, bool radius_given, double forced) {
     // estimate that holds over the clip: where focus never changed, the radius is the absolute
     // floor, one smooth surface that every frame shares (docs/method.md, Atlas scale).
     torch::NoGradGuard g;
-    const double in_focus = (d.radius < 1.5).to(torch::kFloat32).mean().item<double>();
+    // Counted frame by frame: a long clip's whole-array comparison is a clip-sized temporary.
+    int64_t sharp = 0;
+    for (int64_t t = 0; t < d.frames; ++t) sharp += (d.radius[t] < 1.5).sum().item<int64_t>();
+    const double in_focus = double(sharp) / double(std::max<int64_t>(d.radius.numel(), 1));
     const double texels = 4.0 * d.height * d.width;
     std::string why;
     d.atlas_scale = 1;
@@ -221,6 +226,24 @@ void release_freed_memory() {
 #endif
 }
 
+void log_kernel(const FitSetupOptions& opts, PrepareLog& log) {
+    log.info("kernel: " + opts.kernel +
+             (opts.kernel == "pillbox" ? " (a uniform disk, seed 001 eq. 1.13)"
+                                       : " (the paper's eq. 2, beta = 2)"));
+}
+
+// What every opening ends with: the atlas scale and the log's summary.
+std::shared_ptr<FitData> finish_fit_data(std::shared_ptr<FitData> d, const FitSetupOptions& opts,
+                                         PrepareLog& log) {
+    log.info(choose_atlas_scale(*d, d->radius_given, opts.atlas_scale));
+    log.info(std::string("fit: ") +
+             (d->static_camera ? "static camera, no learned background warp"
+                               : "moving camera, learned residual warp") +
+             ", " +
+             (d->has_subject ? "two layers (moving subject)" : "one layer (no moving subject)"));
+    return d;
+}
+
 }  // namespace
 
 std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOptions& opts,
@@ -228,6 +251,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     // Progress: the steps' shares are the sample clip's timings (320x180, 30 frames, radius
     // from the focal stack: 70% of the time), rough for any other clip.
     log.stage("reading the frames", 0.0, 0.03);
+    StageClock clock;  // --debug timing: the clip's data, stage by stage
+    clock.next("data: reading the frames", "reading the frames");
     const int64_t T = project.frames, H = project.height, W = project.width;
     auto d = std::make_shared<FitData>();
     d->frames = int(T), d->height = int(H), d->width = int(W);
@@ -240,12 +265,30 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         log.info("memory: the clip's frames take " + std::to_string(int(frames_mb)) +
                  " MB (over fit.memory_mb); its per-frame arrays stream through " +
                  d->mapped_dir.string());
+        if (opts.clip_cache) d->cache_dir = project.dir / "work" / "clip";
+    }
+    d->blur = fit_kernel_params(opts.kernel);
+    d->radius_given = !opts.coc_path.empty();
+    // What the rest of this function makes, a long clip's last command kept (model/clip_cache.h).
+    if (!d->cache_dir.empty() && !opts.force_prepare && has_prepare(project)) {
+        d->cache_key = clip_cache_key(project, opts);
+        clock.next("data: the kept arrays", "opening the clip's kept arrays");
+        if (open_kept_clip(*d)) {
+            const NoiseEstimate noise = project_noise(project);
+            d->noise_levels = noise.measured() ? noise.mean() : -1.0;
+            log.info("noise: " + noise.describe());
+            log.info("data: the clip's arrays as the last command kept them in " +
+                     d->cache_dir.string() + " (fit.clip_cache)");
+            log_kernel(opts, log);
+            return finish_fit_data(d, opts, log);
+        }
+        clock.next("data: reading the frames", "reading the frames");
     }
     // Preparation runs on proxies of large frames (proxy.h): `small` holds them, and the
     // full-size frames go straight to the fit's input.
     const ProxySize px = proxy_size(project.width, project.height, opts.proxy_width);
     std::vector<Image> frames, small;
-    d->input = d->clip_array({T, 3, H, W});
+    d->input = d->clip_array({T, 3, H, W}, "input");
     for (int t = 0; t < T; ++t) {
         Image f = project.read_frame(t);
         d->input[t].copy_(image_to_tensor(f));
@@ -270,6 +313,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     bool reuse = !opts.force_prepare && has_prepare(project);
     if (reuse) {
         log.stage("loading the preparation", 0.03, 0.2);
+        clock.next("data: loading the preparation", "loading the preparation");
         prep = load_prepare(project);
         // Reuse only what was prepared for the same masks, at the same size, and with a radius
         // estimate if needed.
@@ -289,6 +333,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         po.estimate_coc = opts.coc_path.empty();
         po.full_width = project.width, po.full_height = project.height;
         log.set_span(0.03, 0.2);
+        clock.next("data: preparing", "preparing the clip");
         prep = prepare_clip(px.active() ? small : frames, po, log);
         log.set_span(0.0, 1.0);
         log.stage("saving the preparation", 0.2, 0.23);
@@ -305,10 +350,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     release_freed_memory();
     debug_memory("setup: prepared");
     log.stage("radius maps", 0.23, 0.92);
-    d->blur = fit_kernel_params(opts.kernel);
-    log.info("kernel: " + opts.kernel +
-             (opts.kernel == "pillbox" ? " (a uniform disk, seed 001 eq. 1.13)"
-                                       : " (the paper's eq. 2, beta = 2)"));
+    clock.next("data: radius and flow at full size", "the radius and the flow at full size");
+    log_kernel(opts, log);
     std::vector<Image> radius;
     if (!opts.coc_path.empty()) {
         radius = load_coc_maps(opts.coc_path, project.frames, project.width, project.height);
@@ -324,7 +367,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                  ", 7 px is " + fmt2(kernel_radius_for_coc(7.0, d->blur)) + ")");
     }
     // The preparation's results at full size, frame by frame (scaled up from the proxy).
-    d->radius = d->clip_array({T, H, W});
+    d->radius = d->clip_array({T, H, W}, "radius");
     for (int t = 0; t < T && (!radius.empty() || !prep.coc.empty()); ++t)
         d->radius[t].copy_(
             image_to_tensor(radius.empty() ? scale_radius(prep.coc[t], W, H) : radius[t])[0]);
@@ -333,8 +376,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     d->static_camera = prep.decisions.static_camera;
     d->to_ref = homography_stack(scale_motion(prep.motion, px.sx, px.sy), d->static_camera);
     if (!prep.flow.fwd.empty()) {
-        d->flow_fwd = d->clip_array({T - 1, 2, H, W});
-        d->flow_valid = d->clip_array({T - 1, 1, H, W});
+        d->flow_fwd = d->clip_array({T - 1, 2, H, W}, "flow_fwd");
+        d->flow_valid = d->clip_array({T - 1, 1, H, W}, "flow_valid");
         for (int t = 0; t + 1 < T; ++t) {
             d->flow_fwd[t].copy_(image_to_tensor(scale_flow(prep.flow.fwd[t], W, H)));
             d->flow_valid[t].copy_(image_to_tensor(scale_binary(prep.flow.fwd_valid[t], W, H)));
@@ -342,6 +385,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     }
     prep.flow = ClipFlow();  // at full size in d->flow_*: a long clip's flow is GBs
     debug_memory("setup: radius and flow scaled up");
+    clock.next("data: the masks", "the subject's masks");
     d->has_subject = prep.decisions.has_subject && !prep.masks.empty();
     if (d->has_subject && opts.mask_path.empty()) {
         // Automatic masks threshold the flow residual, and a focus change alone makes edges
@@ -384,12 +428,13 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             px.active() && !opts.mask_path.empty()
                 ? load_masks(opts.mask_path, project.frames, project.width, project.height)
                 : std::vector<Image>{};
-        d->mask = d->clip_array({T, 1, H, W});
+        d->mask = d->clip_array({T, 1, H, W}, "mask");
         for (int t = 0; t < T; ++t)
             d->mask[t].copy_(
                 image_to_tensor(roto.empty() ? resize_image(prep.masks[t], W, H) : roto[t]));
         if (prep.mask_source == "auto") {  // a roto matte is kept as given
             d->mask_as_stored = d->mask;
+            clock.next("data: cleaning the masks", "cleaning the subject's masks");
             log.info(clean_subject_masks(*d));
         }
     }
@@ -397,6 +442,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     release_freed_memory();  // before the focal stack's working set
     if (opts.coc_path.empty()) {
         if (d->frames >= 3 && !opts.single_image_coc) {
+            clock.next("data: the focal-stack radius", "the focal-stack radius");
             const std::string key = stack_key(project, *d, opts);
             torch::Tensor cached = load_stack_radius(project, *d, key, d->fixed_focus_share);
             if (cached.defined()) {
@@ -409,7 +455,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                                 ? stack_radius_on_proxy(*d, small, prep.motion, px, so, &report)
                                 : estimate_radius_from_stack(*d, so, &report);
                 if (!d->mapped_dir.empty() && !is_mapped(d->radius))
-                    d->radius = d->clip_array(d->radius.sizes()).copy_(d->radius);
+                    d->radius = d->clip_array(d->radius.sizes(), "radius").copy_(d->radius);
                 d->fixed_focus_share = report.fixed_focus_share;
                 log.info("radius: " + report.summary);
                 try {
@@ -428,14 +474,12 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     std::vector<Image>().swap(small);  // the proxies served the preparation and the radius
     release_freed_memory();
     debug_memory("setup: radius estimated");
-    d->radius_given = !opts.coc_path.empty();
-    log.info(choose_atlas_scale(*d, d->radius_given, opts.atlas_scale));
-    log.info(std::string("fit: ") +
-             (d->static_camera ? "static camera, no learned background warp"
-                               : "moving camera, learned residual warp") +
-             ", " +
-             (d->has_subject ? "two layers (moving subject)" : "one layer (no moving subject)"));
-    return d;
+    if (!d->cache_dir.empty()) {
+        clock.next("data: keeping the arrays", "keeping the clip's arrays");
+        d->cache_key = clip_cache_key(project, opts);  // the preparation may be new
+        keep_clip(*d, log);
+    }
+    return finish_fit_data(d, opts, log);
 }
 
 }  // namespace refocus

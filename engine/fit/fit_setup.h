@@ -31,6 +31,9 @@ struct FitSetupOptions {
     // A clip whose frames (float) exceed this many MB keeps its per-frame arrays in file
     // mappings (util/mapped.h, FitData::mapped_dir).
     double memory_mb = 512;
+    // Such a clip keeps its full-size arrays (frames, radius, masks, flow, each layer's radius)
+    // in <project>/work/clip/ for the next command to map (model/clip_cache.h).
+    bool clip_cache = true;
     Settings settings;  // the radius estimator's (radius.*) and the fields above, as set
 };
 

@@ -113,6 +113,9 @@ const std::vector<Field<FitSetupOptions>>& setup_fields() {
         {"fit.memory_mb", &O::memory_mb, 0, 1e9,
          "a clip whose frames take more than this (MB, float) streams its per-frame arrays "
          "through file mappings in the project's work/ folder"},
+        {"fit.clip_cache", &O::clip_cache, 0, 1,
+         "a clip whose arrays stream through file mappings keeps them in work/clip/ for the next "
+         "command (export, the studio, --resume) to open at once; 0: made again each time"},
         {"prepare.proxy_width", &O::proxy_width, 0, 1e5,
          "flow, camera motion, masks and the radius estimate run on frames at most this wide "
          "(px), their results scaled up; 0: at the clip's size"},

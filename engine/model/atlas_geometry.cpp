@@ -47,8 +47,9 @@ AtlasBox mapped_frames_box(const torch::Tensor& to_ref_in, int64_t H, int64_t W)
     return b;
 }
 
-void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double>& vy,
-                   std::vector<double>* scale_out) {
+namespace {
+void track_from_masks(const FitData& d, std::vector<double>& vx, std::vector<double>& vy,
+                      std::vector<double>* scale_out) {
     const torch::Tensor &flow_fwd = d.flow_fwd, &flow_valid = d.flow_valid;
     auto m = d.mask.squeeze(1);  // [T,H,W]
     const int64_t T = m.size(0);
@@ -163,6 +164,35 @@ void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double
     std::nth_element(ox.begin(), ox.begin() + T / 2, ox.end());
     std::nth_element(oy.begin(), oy.begin() + T / 2, oy.end());
     for (int64_t t = 0; t < T; ++t) vx[t] = sx[t] + ox[T / 2], vy[t] = sy[t] + oy[T / 2];
+}
+}  // namespace
+
+int64_t version(const torch::Tensor& t) {
+    return t.defined() ? int64_t(t._version()) : -1;
+}
+
+void subject_track(const FitData& d, std::vector<double>& vx, std::vector<double>& vy,
+                   std::vector<double>* scale_out) {
+    // Reading a long clip's masks and flow is most of it, and set-up asks more than once.
+    const bool scaled = scale_out != nullptr;
+    for (const FitData::TrackMemo& m : d.track_memo)
+        if (m.mask.is_same(d.mask) && m.flow.is_same(d.flow_fwd) && m.scaled == scaled &&
+            m.versions == std::make_pair(version(d.mask), version(d.flow_fwd)) &&
+            m.legacy == d.legacy_subject_track && m.gaps == d.legacy_track_gaps) {
+            vx = m.vx, vy = m.vy;
+            if (scale_out) *scale_out = m.scale;
+            return;
+        }
+    FitData::TrackMemo m{d.mask,
+                         d.flow_fwd,
+                         scaled,
+                         d.legacy_subject_track,
+                         d.legacy_track_gaps,
+                         {version(d.mask), version(d.flow_fwd)}};
+    track_from_masks(d, m.vx, m.vy, scaled ? &m.scale : nullptr);
+    vx = m.vx, vy = m.vy;
+    if (scale_out) *scale_out = m.scale;
+    d.track_memo.push_back(std::move(m));
 }
 
 torch::Tensor subject_to_track(double vx, double vy, double scale) {
@@ -322,7 +352,7 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
     std::vector<double> area(T, 0.0);
     // The cleaned masks, frame by frame into a clip array (a long clip's need not fit in memory);
     // d.mask itself is left as it was (mask_as_stored may share it).
-    torch::Tensor kept = d.clip_array(d.mask.sizes());
+    torch::Tensor kept = d.clip_array(d.mask.sizes(), "mask");
     // A part's persistence is read in 33 frames spread over the clip (all of a shorter clip's):
     // a share, which 32 samples hold to a few percent, where every pair of 240 frames is T² work.
     std::vector<int64_t> others;

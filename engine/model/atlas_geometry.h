@@ -32,6 +32,8 @@ AtlasBox mapped_frames_box(const torch::Tensor& to_ref, int64_t H, int64_t W);
 // over the clip (the flow's expansion over the subject, chained; 1 elsewhere and without flow):
 // frame pixel p is at (p − c_t)/scale_t in the subject's own coordinates.
 struct FitData;
+// A tensor's version counter (bumped by every write into it or a view of it); -1 undefined.
+int64_t version(const torch::Tensor& t);
 void subject_track(const FitData& d, std::vector<double>& cx, std::vector<double>& cy,
                    std::vector<double>* scale = nullptr);
 // 3x3 float64: frame px → the subject's coordinates, (p − (cx, cy)) / scale.

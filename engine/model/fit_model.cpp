@@ -2,13 +2,25 @@
 
 #include <torch/torch.h>
 
+#include "model/clip_cache.h"
 #include "util/error.h"
 #include "util/mapped.h"
 
 namespace refocus {
 
-torch::Tensor FitData::clip_array(at::IntArrayRef shape) const {
+torch::Tensor FitData::clip_array(at::IntArrayRef shape, const char* keep) const {
+    if (keep && !cache_dir.empty()) return new_kept_array(*this, keep, shape);
     return mapped_dir.empty() ? torch::zeros(shape) : mapped_tensor(shape, mapped_dir);
+}
+
+void check_finite(const FitData& d) {
+    for (int64_t t = 0; t < d.frames; ++t) {
+        if (!torch::isfinite(d.input[t]).all().item<bool>())
+            throw Error("fit: the input frames contain NaN/Inf");
+        if (!torch::isfinite(d.radius[t]).all().item<bool>() ||
+            (d.radius[t] < 0).any().item<bool>())
+            throw Error("fit: the radius maps contain NaN/Inf or negative values");
+    }
 }
 
 torch::Tensor FitData::per_frame(const std::function<torch::Tensor(int64_t)>& fn) const {

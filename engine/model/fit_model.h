@@ -56,7 +56,29 @@ struct FitData {
     // this folder (build_fit_data sets it for a clip whose frames exceed fit.memory_mb).
     fs::path mapped_dir;
     // A zero-filled float array for per-frame data ([T, ...]): mapped when mapped_dir is set.
-    torch::Tensor clip_array(at::IntArrayRef shape) const;
+    // With `keep` and a clip cache (below), the array is made in that cache's file of the name,
+    // which keep_clip_array (model/clip_cache.h) then publishes.
+    torch::Tensor clip_array(at::IntArrayRef shape, const char* keep = nullptr) const;
+    // The input and the radius are known finite and the radius non-negative (checked when they
+    // were kept, model/clip_cache.h): the engine's own check of them is skipped.
+    bool finite_checked = false;
+    // subject_track's answers (model/atlas_geometry.h) for the masks and flow they were read
+    // from (held, so that they are the same arrays, and their version: not written since), with
+    // or without the scale, and the track's legacy flags; keep_clip stores the fit's own with
+    // the kept arrays.
+    struct TrackMemo {
+        torch::Tensor mask, flow;
+        bool scaled = false, legacy = false, gaps = false;
+        std::pair<int64_t, int64_t> versions;
+        std::vector<double> vx, vy, scale;
+    };
+    mutable std::vector<TrackMemo> track_memo;
+    // The clip's arrays kept between commands (model/clip_cache.h): the folder and the key of
+    // the data they were made from; empty: none kept.
+    fs::path cache_dir;
+    std::string cache_key;
+    // clip_array's files not yet published: name → (file, data).
+    mutable std::map<std::string, std::pair<fs::path, const void*>> cache_pending;
     // fn(t) of every frame stacked into a clip array, [T, fn(0)'s sizes], one frame at a time.
     torch::Tensor per_frame(const std::function<torch::Tensor(int64_t)>& fn) const;
 
@@ -65,6 +87,10 @@ struct FitData {
         return r.defined() ? r : radius;
     }
 };
+
+// Throws unless every input frame is finite and every radius finite and non-negative (frame by
+// frame: a long clip's arrays are file mappings, util/mapped.h).
+void check_finite(const FitData& d);
 
 // One rendered batch of frames. All [B,...].
 struct Layers {

@@ -376,7 +376,8 @@ void split_radius_by_layer(FitData& d, int margin) {
     torch::NoGradGuard no_grad;
     auto r = d.radius.unsqueeze(1);  // [T,1,H,W]
     // Frame by frame, into clip arrays: a long clip's maps need not fit in memory.
-    auto out_fg = d.clip_array(d.radius.sizes()), out_bg = d.clip_array(d.radius.sizes());
+    auto out_fg = d.clip_array(d.radius.sizes(), "radius_fg"),
+         out_bg = d.clip_array(d.radius.sizes(), "radius_bg");
     for (int64_t t = 0; t < d.frames; ++t) {
         const auto fg = (d.mask.narrow(0, t, 1) > 0.5).to(torch::kFloat32);  // [1,1,H,W]
         auto keep_fg = erode(fg, margin), keep_bg = erode(1.0 - fg, margin);

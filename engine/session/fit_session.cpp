@@ -130,9 +130,21 @@ std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
                                "the project has not been fitted yet (run: refocus fit " +
                                    p.dir.string() + " --minutes 5)"));
     FitSettings s = read_fit_settings(p);
+    // A checkpoint from before the cleaned masks' track ("flow-v2") rebuilds its model on the
+    // masks as stored, which the kept arrays (model/clip_cache.h) do not hold.
+    try {
+        const auto j = read_json_file((fit_dir(p) / "checkpoint.json").string());
+        if (j.value("subject_track", std::string()) != "flow-v2") s.setup.clip_cache = false;
+    } catch (const std::exception&) {
+        // load_checkpoint says what is wrong
+    }
+    StageClock clock;  // --debug timing
+    clock.next("open: the clip's data");
     auto data = build_fit_data(p, s.setup, log);
     if (s.fit.minutes <= 0 && s.fit.iters <= 0) s.fit.iters = 1;
+    clock.next("open: the model");
     auto engine = std::make_unique<FitEngine>(data, restoring_options(p, s.fit));
+    clock.next("open: the checkpoint");
     engine->load_checkpoint(fit_dir(p));
     return engine;
 }

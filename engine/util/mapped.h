@@ -17,7 +17,12 @@ namespace refocus {
 // absent). Throws refocus::Error naming the folder when the file cannot be made or mapped.
 torch::Tensor mapped_tensor(at::IntArrayRef shape, const fs::path& dir);
 
-// Whether `t`'s storage is one of mapped_tensor's.
+// A float32 tensor of `shape` in the named file `file`: `create` makes (or truncates) it, zero
+// filled and writable; otherwise the file must hold exactly the shape's bytes and is mapped
+// read-only (writing into the tensor faults). Throws refocus::Error naming the file.
+torch::Tensor mapped_file_tensor(const fs::path& file, at::IntArrayRef shape, bool create);
+
+// Whether `t`'s storage is one of mapped_tensor's or mapped_file_tensor's.
 bool is_mapped(const torch::Tensor& t);
 
 // Drops the pages of every live mapping from this process (the data stays). Safe at any time.
