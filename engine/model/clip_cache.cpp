@@ -58,7 +58,7 @@ torch::Tensor new_kept_array(const FitData& d, const std::string& name, at::IntA
     // A name made again in this command (a model rebuilt) replaces its unpublished file.
     const auto old = d.cache_pending.find(name);
     if (old != d.cache_pending.end()) fs::remove(old->second.first, ec);
-    d.cache_pending[name] = {file, t.data_ptr()};
+    d.cache_pending[name] = {file, t};
     return t;
 }
 
@@ -68,7 +68,8 @@ void keep_clip_array(const FitData& d, const std::string& name, const torch::Ten
     std::error_code ec;
     fs::path made;
     const auto p = d.cache_pending.find(name);
-    if (p != d.cache_pending.end() && p->second.second == t.data_ptr() && t.is_contiguous() &&
+    if (p != d.cache_pending.end() && p->second.second.data_ptr() == t.data_ptr() &&
+        p->second.second.numel() == t.numel() && t.is_contiguous() &&
         t.scalar_type() == torch::kFloat32) {
         made = p->second.first;
         d.cache_pending.erase(p);

@@ -77,8 +77,9 @@ struct FitData {
     // the data they were made from; empty: none kept.
     fs::path cache_dir;
     std::string cache_key;
-    // clip_array's files not yet published: name → (file, data).
-    mutable std::map<std::string, std::pair<fs::path, const void*>> cache_pending;
+    // clip_array's files not yet published: name → (file, its array, held so that no other
+    // array takes its address).
+    mutable std::map<std::string, std::pair<fs::path, torch::Tensor>> cache_pending;
     // fn(t) of every frame stacked into a clip array, [T, fn(0)'s sizes], one frame at a time.
     torch::Tensor per_frame(const std::function<torch::Tensor(int64_t)>& fn) const;
 
