@@ -226,6 +226,14 @@ void release_freed_memory() {
 #endif
 }
 
+// The clip's noise as the project stores it (measured now where it does not).
+void read_noise(const Project& project, FitData& d, PrepareLog& log) {
+    const bool stored = project.sections.contains("noise");
+    const NoiseEstimate noise = project_noise(project);
+    d.noise_levels = noise.measured() ? noise.mean() : -1.0;
+    log.info("noise: " + noise.describe() + (stored ? "" : " (measured now)"));
+}
+
 void log_kernel(const FitSetupOptions& opts, PrepareLog& log) {
     log.info("kernel: " + opts.kernel +
              (opts.kernel == "pillbox" ? " (a uniform disk, seed 001 eq. 1.13)"
@@ -274,9 +282,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         d->cache_key = clip_cache_key(project, opts);
         clock.next("data: the kept arrays", "opening the clip's kept arrays");
         if (open_kept_clip(*d)) {
-            const NoiseEstimate noise = project_noise(project);
-            d->noise_levels = noise.measured() ? noise.mean() : -1.0;
-            log.info("noise: " + noise.describe());
+            read_noise(project, *d, log);
             log.info("data: the clip's arrays as the last command kept them in " +
                      d->cache_dir.string() + " (fit.clip_cache)");
             log_kernel(opts, log);
@@ -298,12 +304,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
             frames.push_back(std::move(f));
     }
     debug_memory("setup: frames read");
-    {
-        const bool stored = project.sections.contains("noise");
-        const NoiseEstimate noise = project_noise(project);
-        d->noise_levels = noise.measured() ? noise.mean() : -1.0;
-        log.info("noise: " + noise.describe() + (stored ? "" : " (measured now)"));
-    }
+    read_noise(project, *d, log);
     if (px.active())
         log.info("prepare: on " + std::to_string(px.width) + "x" + std::to_string(px.height) +
                  " proxies (prepare.proxy_width), scaled up to " + std::to_string(project.width) +
