@@ -7,6 +7,7 @@
 #include <doctest/doctest.h>
 
 #include <cstdlib>
+#include <fstream>
 
 #include "fit/fit_engine.h"
 #include "session/fit_session.h"
@@ -134,6 +135,76 @@ TEST_CASE(
     CHECK(build_fit_data(Project::load(c.project), so, log)->blur.kernel == BlurKernel::Disk);
     so.kernel = "pillbox";
     CHECK(build_fit_data(Project::load(c.project), so, log)->blur.kernel == BlurKernel::Pillbox);
+}
+
+namespace {
+// Flips bytes in the middle of `file`.
+void damage(const fs::path& file) {
+    std::string bytes = read_text_file(file);
+    for (size_t i = bytes.size() / 3; i < bytes.size() / 3 + 64; ++i) bytes[i] ^= 0x5a;
+    std::ofstream(file, std::ios::binary) << bytes;
+}
+
+fs::path checkpoint_file(const fs::path& ck, const char* key) {
+    const auto j = nlohmann::json::parse(read_text_file(ck / "checkpoint.json"));
+    return ck / j.at(key).get<std::string>();
+}
+}  // namespace
+
+TEST_CASE(
+    "a checkpoint opened for reading maps its residual and reads the optimizer when a step needs "
+    "it: the same fit") {
+    SteppedFit f = stepped_fit(7, 12, 3, "fit_read_open");
+    CHECK(fs::exists(checkpoint_file(f.ck, "optimizer")));
+    CHECK(fs::file_size(checkpoint_file(f.ck, "residual")) ==
+          uintmax_t(f.data->frames * f.data->height * f.data->width) * sizeof(float));
+    FitEngine train(std::make_shared<FitData>(*f.data), f.opts);
+    train.load_checkpoint(f.ck);
+    FitEngine read(std::make_shared<FitData>(*f.data), f.opts);
+    read.load_checkpoint(f.ck, FitEngine::CheckpointUse::Read);
+    // The output rules read the same residual.
+    CHECK(read.residual_rms() == train.residual_rms());
+    CHECK(std::isfinite(read.residual_rms()));
+    for (int t : {0, 3}) {
+        const auto a = train.fallback_weight(t), b = read.fallback_weight(t);
+        CHECK(a.defined() == b.defined());
+        if (a.defined() && b.defined()) CHECK(torch::equal(a, b));
+    }
+    // Stepped on, the one opened for reading reads what it left on disk: the same fit.
+    for (int i = 0; i < 3; ++i) train.step(), read.step();
+    const auto sa = train.model().state(), sb = read.model().state();
+    REQUIRE(sa.size() == sb.size());
+    for (const auto& [name, t] : sa) {
+        INFO(name);
+        CHECK(torch::equal(t, sb.at(name)));
+    }
+
+    // A damaged residual is named when its frames are read; a damaged optimizer state when a
+    // step needs it (an export, which does not, still opens).
+    const fs::path saved = scratch_dir("fit_read_open_damaged");
+    fs::copy(f.ck, saved, fs::copy_options::recursive | fs::copy_options::overwrite_existing);
+    damage(checkpoint_file(saved, "residual"));
+    FitEngine r1(std::make_shared<FitData>(*f.data), f.opts);
+    CHECK_THROWS_WITH_AS(r1.load_checkpoint(saved, FitEngine::CheckpointUse::Read),
+                         doctest::Contains(".resid: damaged checkpoint residual: frame"), Error);
+    fs::copy(f.ck, saved, fs::copy_options::recursive | fs::copy_options::overwrite_existing);
+    damage(checkpoint_file(saved, "optimizer"));
+    FitEngine r2(std::make_shared<FitData>(*f.data), f.opts);
+    CHECK_NOTHROW(r2.load_checkpoint(saved, FitEngine::CheckpointUse::Read));
+    CHECK(r2.render_frame(1).sharp.defined());
+    CHECK_THROWS_WITH_AS(r2.step(), doctest::Contains(".optim.pt: damaged checkpoint tensors"),
+                         Error);
+    FitEngine r3(std::make_shared<FitData>(*f.data), f.opts);
+    CHECK_THROWS_WITH_AS(r3.load_checkpoint(saved),
+                         doctest::Contains(".optim.pt: damaged checkpoint tensors"), Error);
+    CHECK(FitEngine::checkpoint_problem(saved, f.data->frames).find(".optim.pt: damaged") !=
+          std::string::npos);
+    // A missing residual is named before anything is restored.
+    fs::remove(checkpoint_file(saved, "residual"));
+    FitEngine r4(std::make_shared<FitData>(*f.data), f.opts);
+    CHECK_THROWS_WITH_AS(r4.load_checkpoint(saved, FitEngine::CheckpointUse::Read),
+                         doctest::Contains(".resid: the checkpoint's tensor file is missing"),
+                         Error);
 }
 
 TEST_CASE("a reopened project rebuilds the model its fit trained: the masks are used as stored") {

@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <functional>
 #include <random>
 #include <sstream>
 
@@ -19,6 +20,8 @@
 #include "util/checksum.h"
 #include "util/error.h"
 #include "util/json_file.h"
+#include "util/mapped.h"
+#include "util/timing.h"
 #include "util/validate.h"
 
 namespace refocus {
@@ -27,7 +30,7 @@ namespace {
 
 using nlohmann::json;
 
-constexpr int kCheckpointVersion = 2;
+constexpr int kCheckpointVersion = 3;
 
 const char* kernel_name(const LensBlurParams& p) {
     return p.kernel == BlurKernel::Pillbox ? "pillbox"
@@ -51,9 +54,16 @@ void migrate_v1_to_v2(json& j) {
     j["version"] = 2;
 }
 
+// Version 2 held the optimizer's state ("optimizer") and the running residual ("robust_resid")
+// in the model's archive; version 3 names their own files ("optimizer", "residual"). A version
+// 2 checkpoint has neither field, and its archive is read for them.
+void migrate_v2_to_v3(json& j) {
+    j["version"] = 3;
+}
+
 // One step per older version: kMigrations[v - 1] brings version v to v + 1.
 using Migration = void (*)(json&);
-const Migration kMigrations[] = {migrate_v1_to_v2};
+const Migration kMigrations[] = {migrate_v1_to_v2, migrate_v2_to_v3};
 static_assert(sizeof kMigrations / sizeof kMigrations[0] == kCheckpointVersion - 1,
               "one migration step per older checkpoint version");
 
@@ -78,6 +88,13 @@ std::string archive_name(const json& j, const std::string& name) {
     return name;
 }
 
+// Whether `v` names a file in the checkpoint's own folder.
+bool plain_name(const json& v) {
+    if (!v.is_string()) return false;
+    const std::string n = v.get<std::string>();
+    return !n.empty() && n.find('/') == std::string::npos && n.find("..") == std::string::npos;
+}
+
 // The fields load_checkpoint reads, checked before anything is restored: a checkpoint that was
 // edited or damaged is refused as corrupt, naming the file and the field, instead of failing
 // deep inside (an index out of range in the batch order, an RNG state that does not parse).
@@ -87,11 +104,20 @@ void validate_checkpoint(const json& j, const fs::path& file, int64_t frames) {
     auto number = [&](const std::string& key) {  // NaN (refused below) when missing or not a number
         return j.contains(key) && j[key].is_number() ? j[key].get<double>() : NAN;
     };
-    const json& tensors = j.contains("tensors") ? j["tensors"] : json();
-    if (!tensors.is_string() || tensors.get<std::string>().empty() ||
-        tensors.get<std::string>().find('/') != std::string::npos ||
-        tensors.get<std::string>().find("..") != std::string::npos)
+    if (!j.contains("tensors") || !plain_name(j["tensors"]))
         json_field_error(corrupt, "tensors", "must name a file in the checkpoint's folder");
+    for (const char* key : {"optimizer", "residual"})  // version 3's files, when present
+        if (j.contains(key) && !plain_name(j[key]))
+            json_field_error(corrupt, key, "must name a file in the checkpoint's folder");
+    if (j.contains("residual")) {
+        const json& sums = j.contains("residual_checksums") ? j["residual_checksums"] : json();
+        bool ok = sums.is_array() && sums.size() == size_t(frames);
+        for (size_t i = 0; ok && i < sums.size(); ++i) ok = sums[i].is_string();
+        if (!ok)
+            json_field_error(corrupt, "residual_checksums",
+                             "must hold one checksum for each of the " + std::to_string(frames) +
+                                 " frames");
+    }
     checked_int(field("step"), number("step"), 0, INT64_MAX / 2);
     checked_range(field("elapsed_s"), number("elapsed_s"), 0, 1e12);
     std::mt19937_64 probe;
@@ -125,16 +151,19 @@ std::string json_checksum(json j) {
     return checksum_hex(checksum64(text.data(), text.size()));
 }
 
-// Writes the archive through a sink that never throws inside LibTorch (an exception there, on a
-// full disk, reached the archive writer's destructor and aborted the process): the first write
-// error is kept, the rest of the archive is dropped, and the caller reports it.
-void save_archive(torch::serialize::OutputArchive& ar, const fs::path& tmp, const fs::path& pt) {
+using Sink = std::function<void(const void*, size_t)>;
+
+// Writes `tmp` (to become `pt`) through `fill`'s sink, which never throws (an exception inside
+// LibTorch's archive writer, on a full disk, reached its destructor and aborted the process):
+// the first write error is kept, the rest is dropped, and it is reported after `fill` returns.
+void write_checkpoint_file(const fs::path& tmp, const fs::path& pt,
+                           const std::function<void(const Sink&)>& fill) {
     const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     if (fd < 0)
         throw Error(file_error(pt.string(),
                                std::string("cannot write checkpoint: ") + std::strerror(errno)));
     int err = 0;
-    ar.save_to([&](const void* data, size_t n) -> size_t {
+    fill([&](const void* data, size_t n) {
         const auto* p = static_cast<const char*>(data);
         for (size_t done = 0; done < n && err == 0;) {
             const ssize_t w = ::write(fd, p + done, n - done);
@@ -144,7 +173,6 @@ void save_archive(torch::serialize::OutputArchive& ar, const fs::path& tmp, cons
             else
                 done += size_t(w);
         }
-        return n;
     });
     if (err == 0 && ::fsync(fd) != 0) err = errno;
     if (::close(fd) != 0 && err == 0) err = errno;
@@ -153,6 +181,60 @@ void save_archive(torch::serialize::OutputArchive& ar, const fs::path& tmp, cons
         throw Error(file_error(pt.string(), std::string("cannot write checkpoint: ") +
                                                 std::strerror(err) +
                                                 " (the previous checkpoint is kept)"));
+    }
+}
+
+void save_archive(torch::serialize::OutputArchive& ar, const fs::path& tmp, const fs::path& pt) {
+    write_checkpoint_file(tmp, pt, [&](const Sink& sink) {
+        ar.save_to([&](const void* data, size_t n) -> size_t {
+            sink(data, n);
+            return n;
+        });
+    });
+}
+
+// Writes `t` ([T, ...] float32) frame after frame, raw, into `tmp` (to become `file`), and
+// returns each frame's checksum.
+json save_frames(const torch::Tensor& t, const fs::path& tmp, const fs::path& file) {
+    json sums = json::array();
+    write_checkpoint_file(tmp, file, [&](const Sink& sink) {
+        for (int64_t s = 0; s < t.size(0); ++s) {
+            const torch::Tensor f = t[s].contiguous();
+            sink(f.data_ptr(), size_t(f.numel()) * f.element_size());
+            sums.push_back(tensor_checksum(f));
+        }
+    });
+    return sums;
+}
+
+// Reads the archive `pt`, whose whole-file checksum should be `sum` (none: not checked), saying
+// which named tensors changed when it is damaged and still reads (`sums`: name → checksum).
+void read_archive(torch::serialize::InputArchive& ar, const fs::path& pt, const std::string& sum,
+                  const json& j, const json& sums) {
+    if (!fs::exists(pt))
+        throw Error(file_error(pt.string(),
+                               "the checkpoint's tensor file is missing (deleted?); "
+                               "fit again without --resume"));
+    const bool damaged = !sum.empty() && sum != checksum_hex(file_checksum64(pt));
+    try {
+        ar.load_from(pt.string());
+    } catch (const std::exception& e) {
+        throw Error(file_error(pt.string(), std::string("cannot read checkpoint tensors (") +
+                                                (damaged ? "damaged" : "truncated or corrupt") +
+                                                "); fit again without --resume"));
+    }
+    if (damaged) {  // name the tensors whose values changed, where the archive still reads
+        std::string which;
+        if (sums.is_object())
+            for (const auto& [name, s] : sums.items()) {
+                torch::Tensor v;
+                if (ar.try_read(archive_name(j, name), v) && s != tensor_checksum(v))
+                    which += (which.empty() ? " in " : ", ") + name;
+            }
+        throw Error(file_error(pt.string(),
+                               "damaged checkpoint tensors: the checksum does not "
+                               "match" +
+                                   which + "; fit again without --resume"));
     }
 }
 
@@ -171,11 +253,31 @@ std::string FitEngine::checkpoint_problem(const fs::path& dir, int64_t frames) {
         migrate_checkpoint(j, jf);
         validate_checkpoint(j, jf, frames);
         if (json_damaged) return jf.string() + ": damaged checkpoint (its checksum does not match)";
-        const fs::path pt = dir / j["tensors"].get<std::string>();
-        if (!fs::exists(pt)) return pt.string() + ": the checkpoint's tensor file is missing";
-        if (j.contains("tensors_checksum") &&
-            j["tensors_checksum"] != checksum_hex(file_checksum64(pt)))
-            return pt.string() + ": damaged checkpoint tensors (the checksum does not match)";
+        for (const char* key : {"tensors", "optimizer"}) {
+            if (!j.contains(key)) continue;
+            const fs::path pt = dir / j[key].get<std::string>();
+            if (!fs::exists(pt)) return pt.string() + ": the checkpoint's tensor file is missing";
+            const std::string sum = std::string(key) + "_checksum";
+            if (j.contains(sum) && j[sum] != checksum_hex(file_checksum64(pt)))
+                return pt.string() + ": damaged checkpoint tensors (the checksum does not match)";
+        }
+        if (j.contains("residual")) {
+            const fs::path rf = dir / j["residual"].get<std::string>();
+            std::error_code ec;
+            const auto size = fs::file_size(rf, ec);
+            const int64_t H = j.value("height", int64_t(0)), W = j.value("width", int64_t(0));
+            if (ec) return rf.string() + ": the checkpoint's residual file is missing";
+            if (size != uintmax_t(frames * H * W) * sizeof(float))
+                return rf.string() + ": damaged checkpoint residual (" + std::to_string(size) +
+                       " bytes, the clip's frames make " +
+                       std::to_string(frames * H * W * int64_t(sizeof(float))) + ")";
+            const auto r = mapped_file_tensor(rf, {frames, 1, H, W}, false);
+            const auto& sums = j["residual_checksums"];
+            for (int64_t s = 0; s < frames; ++s)
+                if (tensor_checksum(r[s]) != sums[size_t(s)].get<std::string>())
+                    return rf.string() + ": damaged checkpoint residual (frame " +
+                           std::to_string(s) + ")";
+        }
     } catch (const std::exception& e) {
         return e.what();
     }
@@ -188,26 +290,35 @@ bool FitEngine::has_checkpoint(const fs::path& dir) {
 
 void FitEngine::save_checkpoint(const fs::path& dir) {
     fs::create_directories(dir);
-    const std::string pt_name = "checkpoint_" + std::to_string(m_step) + ".pt";
-    const fs::path pt = dir / pt_name;
+    own_residual();  // a Read opening's optimizer state is read first, so that it is saved
+    const std::string stem = "checkpoint_" + std::to_string(m_step);
+    const std::string pt_name = stem + ".pt", optim_name = stem + ".optim.pt",
+                      resid_name = stem + ".resid";
     json sums = json::object();  // per model tensor, checked on load
-    std::string tensors_sum;     // of the whole archive
+    json resid_sums;             // per frame of the running residual
+    std::string tensors_sum, optim_sum;
     {
         std::lock_guard<std::mutex> lock(m_model_mutex);
+        remove_stale_temporaries(dir);  // a killed fit's half-written files
+        auto publish = [&](torch::serialize::OutputArchive& ar, const std::string& name) {
+            const fs::path pt = dir / name, tmp = temp_sibling(pt);
+            save_archive(ar, tmp, pt);
+            const std::string sum = checksum_hex(file_checksum64(tmp));
+            commit_temp(tmp, pt);
+            return sum;
+        };
         torch::serialize::OutputArchive ar;
         for (auto& [name, t] : m_model->state()) ar.write("model/" + name, t.detach());
-        ar.write("robust_resid", m_resid);
+        for (auto& [name, t] : m_model->state()) sums["model/" + name] = tensor_checksum(t);
+        tensors_sum = publish(ar, pt_name);
         if (m_optim) {
             torch::serialize::OutputArchive opt;
             m_optim->save(opt);
-            ar.write("optimizer", opt);
+            optim_sum = publish(opt, optim_name);
         }
-        for (auto& [name, t] : m_model->state()) sums["model/" + name] = tensor_checksum(t);
-        remove_stale_temporaries(dir);  // a killed fit's half-written archive
-        const fs::path tmp = temp_sibling(pt);
-        save_archive(ar, tmp, pt);
-        tensors_sum = checksum_hex(file_checksum64(tmp));
-        commit_temp(tmp, pt);
+        const fs::path rf = dir / resid_name, tmp = temp_sibling(rf);
+        resid_sums = save_frames(m_resid, tmp, rf);
+        commit_temp(tmp, rf);
     }
     std::ostringstream rng;
     rng << m_rng;
@@ -234,13 +345,18 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
               {"perm_pos", m_perm_pos},
               {"tensors", pt_name},
               {"tensors_checksum", tensors_sum},
-              {"checksums", sums}};
+              {"checksums", sums},
+              {"residual", resid_name},
+              {"residual_checksums", resid_sums}};
+    if (m_optim) j["optimizer"] = optim_name, j["optimizer_checksum"] = optim_sum;
     j["checksum"] = json_checksum(j);
     write_file_atomic(dir / "checkpoint.json", j.dump(1));
-    // checkpoint.json names only this step's tensor file: the others are removed.
+    // checkpoint.json names only this step's files: the others are removed.
     for (const auto& e : fs::directory_iterator(dir)) {
         const std::string n = e.path().filename().string();
-        if (n.rfind("checkpoint_", 0) == 0 && n != pt_name && e.path().extension() == ".pt") {
+        const std::string ext = e.path().extension().string();
+        if (n.rfind("checkpoint_", 0) == 0 && (ext == ".pt" || ext == ".resid") &&
+            n != pt_name && n != optim_name && n != resid_name) {
             std::error_code ec;
             fs::remove(e.path(), ec);
         }
@@ -254,7 +370,28 @@ bool FitEngine::maybe_checkpoint(const fs::path& dir) {
     return true;
 }
 
-void FitEngine::load_checkpoint(const fs::path& dir) {
+void FitEngine::load_optimizer_state(const fs::path& file, const std::string& sum) {
+    torch::serialize::InputArchive ar;
+    read_archive(ar, file, sum, json::object(), json());
+    std::lock_guard<std::mutex> lock(m_model_mutex);
+    m_optim->load(ar);
+}
+
+torch::Tensor FitEngine::residual_frame(int s) const {
+    if (!m_resid.defined()) return {};
+    if (m_resid_file.empty()) return m_resid[s];
+    std::lock_guard<std::mutex> lock(m_resid_check_mutex);
+    if (!m_resid_checked[size_t(s)]) {
+        if (tensor_checksum(m_resid[s]) != m_resid_sums[size_t(s)])
+            throw Error(file_error(m_resid_file.string(),
+                                   "damaged checkpoint residual: frame " + std::to_string(s) +
+                                       " does not match its checksum; fit again without --resume"));
+        m_resid_checked[size_t(s)] = 1;
+    }
+    return m_resid[s];
+}
+
+void FitEngine::load_checkpoint(const fs::path& dir, CheckpointUse use) {
     const fs::path jf = dir / "checkpoint.json";
     json j = read_json_file(jf);  // depth bounded; errors name the file
     // The checksum (of checkpoints written since they carry one) is checked after the fields,
@@ -280,36 +417,40 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     // The radius and the reblur are in the kernel's terms (the project's fit settings say which
     // kernel to set the data up with).
     expect("kernel", kernel_name(m_data->blur));
-    const fs::path pt = dir / j.value("tensors", std::string());
-    if (!fs::exists(pt))
-        throw Error(file_error(pt.string(),
-                               "the checkpoint's tensor file is missing (deleted?); "
-                               "fit again without --resume"));
-    const bool damaged = j.contains("tensors_checksum") &&
-                         j["tensors_checksum"] != checksum_hex(file_checksum64(pt));
+    const auto file_of = [&](const char* key) {
+        return j.contains(key) ? dir / j[key].get<std::string>() : fs::path();
+    };
+    const auto sum_of = [&](const char* key) {
+        return j.contains(key) ? j[key].get<std::string>() : std::string();
+    };
+    // Every file is checked to be there before anything is restored.
+    const fs::path optim_file = file_of("optimizer"), resid_file = file_of("residual");
+    for (const fs::path& f : {optim_file, resid_file})
+        if (!f.empty() && !fs::exists(f))
+            throw Error(file_error(f.string(),
+                                   "the checkpoint's tensor file is missing (deleted?); "
+                                   "fit again without --resume"));
+    StageClock clock;  // --debug timing
+    clock.next("checkpoint: the model's archive");
     torch::serialize::InputArchive ar;
-    try {
-        ar.load_from(pt.string());
-    } catch (const std::exception& e) {
-        throw Error(file_error(pt.string(), std::string("cannot read checkpoint tensors (") +
-                                                (damaged ? "damaged" : "truncated or corrupt") +
-                                                "); fit again without --resume"));
+    read_archive(ar, file_of("tensors"), sum_of("tensors_checksum"), j,
+                 j.contains("checksums") ? j["checksums"] : json());
+    torch::Tensor resid;  // the running residual: its own file, or (version 2) the archive's
+    if (!resid_file.empty()) {
+        clock.next("checkpoint: the running residual");
+        resid = mapped_file_tensor(resid_file, {m_data->frames, 1, m_data->height, m_data->width},
+                                   false);
+    } else if (ar.try_read("robust_resid", resid) &&
+               resid.sizes().equals({m_data->frames, 1, m_data->height, m_data->width})) {
+        auto r = m_data->clip_array({m_data->frames, 1, m_data->height, m_data->width});
+        r.copy_(resid);  // a long clip's in its file mapping
+        resid = r;
+    } else {
+        resid = torch::Tensor();  // a checkpoint without it: the running residual starts again
     }
-    if (damaged) {  // name the tensors whose values changed, where the archive still reads
-        std::string which;
-        if (j.contains("checksums") && j["checksums"].is_object())
-            for (const auto& [name, sum] : j["checksums"].items()) {
-                torch::Tensor v;
-                if (ar.try_read(archive_name(j, name), v) && sum != tensor_checksum(v))
-                    which += (which.empty() ? " in " : ", ") + name;
-            }
-        throw Error(file_error(pt.string(),
-                               "damaged checkpoint tensors: the checksum does not "
-                               "match" +
-                                   which + "; fit again without --resume"));
-    }
-    std::lock_guard<std::mutex> lock(m_model_mutex);
+    clock.next("checkpoint: the model's tensors");
     {
+        std::lock_guard<std::mutex> lock(m_model_mutex);
         // A checkpoint's own subject track ("centroid", "flow": FitData::legacy_subject_track)
         // and atlas scale rebuild the model that way, so its atlases and mappings keep their
         // meaning.
@@ -344,18 +485,29 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
         try {
             m_model->load_state(s);
         } catch (const Error& e) {
-            throw Error(file_error(pt.string(), e.what()));
+            throw Error(file_error(file_of("tensors").string(), e.what()));
         }
-        make_optimizer();     // load_state may have given the model new tensors (a stored geometry)
-        torch::Tensor resid;  // a checkpoint without it: the running residual starts again
-        if (ar.try_read("robust_resid", resid) && resid.sizes().equals(m_resid.sizes()))
-            m_resid.copy_(resid);
-        if (m_optim) {
+        make_optimizer();  // load_state may have given the model new tensors (a stored geometry)
+        {
+            std::lock_guard<std::mutex> l(m_unexplained_mutex);
+            m_resid = resid;
+            m_resid_file = resid_file;
+            if (!resid_file.empty()) {
+                m_resid_sums = j["residual_checksums"].get<std::vector<std::string>>();
+                m_resid_checked.assign(size_t(m_data->frames), 0);
+            }
+        }
+        m_pending_optim.clear();
+        if (m_optim && !optim_file.empty()) {  // version 3: its own file, read when needed
+            m_pending_optim = optim_file;
+            m_pending_optim_sum = sum_of("optimizer_checksum");
+        } else if (m_optim) {
             torch::serialize::InputArchive opt;
             ar.read("optimizer", opt);
             m_optim->load(opt);
         }
     }
+    clock.next("checkpoint: the figures");
     m_step = j.at("step").get<int64_t>();
     m_elapsed = j.at("elapsed_s").get<double>();
     m_last_ckpt = m_elapsed;
@@ -363,6 +515,10 @@ void FitEngine::load_checkpoint(const fs::path& dir) {
     rng >> m_rng;
     m_perm = j.at("perm").get<std::vector<int64_t>>();
     m_perm_pos = j.at("perm_pos").get<size_t>();
+    if (use == CheckpointUse::Train) {
+        clock.next("checkpoint: the optimizer and residual");
+        own_residual();
+    }
     const double rms = residual_rms(), trust = reported_trust();
     std::lock_guard<std::mutex> l2(m_snap_mutex);
     m_snap.residual_rms = rms;

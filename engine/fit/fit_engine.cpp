@@ -59,8 +59,8 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
         // Frame by frame: a long clip's arrays are file mappings (util/mapped.h), and a check
         // over the whole clip at once would hold a clip-sized temporary.
         if (!m_data->finite_checked) check_finite(*m_data);
-        m_resid = m_data->clip_array({m_data->frames, 1, m_data->height, m_data->width});
-        m_resid.fill_(-1.0f);
+        // The running residual is made at the first step (own_residual): an engine opened from
+        // its checkpoint reads the checkpoint's instead.
     }
     clock.end();
     build_model();
@@ -386,8 +386,27 @@ FitEngine::StepRender FitEngine::render_step(const std::vector<int64_t>& frames,
     return r;
 }
 
+void FitEngine::own_residual() {
+    torch::NoGradGuard g;
+    if (!m_pending_optim.empty()) {
+        const fs::path file = m_pending_optim;
+        m_pending_optim.clear();
+        load_optimizer_state(file, m_pending_optim_sum);
+    }
+    if (m_resid.defined() && m_resid_file.empty()) return;
+    auto r = m_data->clip_array({m_data->frames, 1, m_data->height, m_data->width});
+    if (m_resid.defined())
+        for (int s = 0; s < m_data->frames; ++s) r[s].copy_(residual_frame(s));
+    else
+        r.fill_(-1.0f);
+    std::lock_guard<std::mutex> lock(m_unexplained_mutex);  // readers hold it (fallback_weight)
+    m_resid = r;
+    m_resid_file.clear();
+}
+
 void FitEngine::step() {
     if (done()) return;
+    own_residual();
     const auto t0 = Clock::now();
     LossTerms terms;
     double loss_v = 0.0, psnr_v = 0.0;

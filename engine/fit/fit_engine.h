@@ -159,17 +159,24 @@ class FitEngine {
     FitSnapshot snapshot() const;
     int batch() const { return m_batch; }  // frames per step, as resolved
 
-    // Checkpoints: `dir`/checkpoint.json + checkpoint_<step>.pt, written atomically; the json is
-    // renamed last, so a kill at any moment leaves the previous checkpoint loadable.
+    // Checkpoints: `dir`/checkpoint.json naming checkpoint_<step>.pt (the model),
+    // checkpoint_<step>.optim.pt (the optimizer's state) and checkpoint_<step>.resid (the running
+    // residual, raw float32 frames), each written atomically; the json is renamed last, so a
+    // kill at any moment leaves the previous checkpoint loadable.
     void save_checkpoint(const fs::path& dir);
     // Why the checkpoint in `dir` cannot be loaded for a clip of `frames` frames (its JSON, its
     // fields, its tensor file and checksums), without building a model; "" when it can.
     static std::string checkpoint_problem(const fs::path& dir, int64_t frames);
     // The checksum checkpoint.json carries of its other fields ("checksum").
     static std::string checkpoint_json_checksum(const nlohmann::json& j);
+    // How a checkpoint is opened. Train restores all a resumed fit needs. Read (export, the
+    // studio's viewer) maps the running residual from its file, checking each frame's checksum
+    // when it is first read, and leaves the optimizer's state on disk until a step or a save
+    // needs it: at 1080p x 240 the two are 2.5 of the checkpoint's 2.8 GB.
+    enum class CheckpointUse { Train, Read };
     // Restores model, optimizer, step, elapsed time and sampling state. Throws if the checkpoint
     // belongs to another preset or clip shape.
-    void load_checkpoint(const fs::path& dir);
+    void load_checkpoint(const fs::path& dir, CheckpointUse use = CheckpointUse::Train);
     static bool has_checkpoint(const fs::path& dir);
     // Saves when checkpoint_seconds of training time have passed after the last save.
     bool maybe_checkpoint(const fs::path& dir);
@@ -264,6 +271,14 @@ class FitEngine {
     // Each layer's radius (split_radius_by_layer), or the split a long clip's last command kept.
     void split_layer_radius();
     void make_optimizer();
+    // Before a step or a save: what a Read opening left on disk (the optimizer's state, the
+    // residual copied out of its read-only mapping), then the residual made if there is none.
+    void own_residual();
+    // m_resid[s]; a residual mapped from a checkpoint has frame s's checksum checked the first
+    // time (refocus::Error naming the file on a mismatch). Undefined before the first step.
+    torch::Tensor residual_frame(int s) const;
+    // Reads the optimizer's state from its own archive (checkpoint.cpp), checked against `sum`.
+    void load_optimizer_state(const fs::path& file, const std::string& sum);
     double budget_fraction() const;
     void step_self();  // a model that steps itself (FitModel::steps_itself)
 
@@ -273,6 +288,14 @@ class FitEngine {
     std::unique_ptr<torch::optim::Optimizer> m_optim;
     std::vector<double> m_base_lr;
     torch::Tensor m_resid;  // [T,1,H,W] running reblur residual per pixel (-1: not yet seen)
+    // A Read opening's residual file (m_resid maps it read-only) with each frame's checksum and
+    // whether it was checked, and its optimizer state not read yet (file, checksum).
+    fs::path m_resid_file;
+    std::vector<std::string> m_resid_sums;
+    mutable std::vector<char> m_resid_checked;
+    mutable std::mutex m_resid_check_mutex;
+    fs::path m_pending_optim;
+    std::string m_pending_optim_sum;
     // Each frame's unexplained share (confidence.h) as of step m_unexplained_step: the fallback
     // of a frame reads its neighbours', and the residual only changes with a step.
     mutable std::vector<torch::Tensor> m_unexplained;

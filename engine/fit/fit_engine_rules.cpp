@@ -93,7 +93,9 @@ torch::Tensor FitEngine::fallback_weight(int t) const {
         [&](int s) {
             auto& u = m_unexplained[s];
             if (u.defined()) return u;  // an unmeasured frame stays undefined and is asked again
-            auto resid = m_resid[s].unsqueeze(0);
+            auto resid = residual_frame(s);
+            if (!resid.defined()) return u;
+            resid = resid.unsqueeze(0);
             if (!(m_opts.fallback_change > 0))
                 u = unexplained_share(resid, m_opts.fallback_k, m_opts.fallback_min);
             else if (!(resid < 0).any().item<bool>())
@@ -193,7 +195,7 @@ double FitEngine::residual_rms() const {
     int counted = 0;
     for (int k = 0; k < n; ++k) {
         const int s = n > 1 ? int(std::lround(double(k) * (T - 1) / (n - 1))) : 0;
-        const auto r = m_resid[s];
+        const auto r = residual_frame(s);
         const int64_t H = r.size(1), W = r.size(2);
         const int64_t step = std::max<int64_t>(1, int64_t(std::sqrt(double(H * W) / 65536.0)));
         auto v = r.slice(1, 0, H, step).slice(2, 0, W, step).flatten();

@@ -145,7 +145,7 @@ std::unique_ptr<FitEngine> open_fitted(const Project& p, PrepareLog& log) {
     clock.next("open: the model");
     auto engine = std::make_unique<FitEngine>(data, restoring_options(p, s.fit));
     clock.next("open: the checkpoint");
-    engine->load_checkpoint(fit_dir(p));
+    engine->load_checkpoint(fit_dir(p), FitEngine::CheckpointUse::Read);
     return engine;
 }
 

@@ -31,7 +31,8 @@ void write_fit_settings(Project& project, const FitSettings& s, const FitSnapsho
 // `fit --resume`): no ECC alignment and no fused atlases where the checkpoint holds the
 // geometry. Only the engine sees them; project.json keeps `fit` as it was.
 FitOptions restoring_options(const Project& project, FitOptions fit);
-// Rebuilds the data and loads the latest checkpoint: a fitted project ready to render/export.
+// Rebuilds the data and loads the latest checkpoint for reading (FitEngine::CheckpointUse::Read:
+// a step or a save reads the rest): a fitted project ready to render and export.
 std::unique_ptr<FitEngine> open_fitted(const Project& project, PrepareLog& log);
 
 // What `refocus export --what` can write.

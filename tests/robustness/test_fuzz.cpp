@@ -256,6 +256,9 @@ void fuzz_tensor_files(const Clip& c, const fs::path& work, const json& base, st
         const fs::path d = work / ("t" + std::to_string(i));
         mutant_project(c, d, base);
         fs::copy_file(c.project / "fit" / "checkpoint.json", d / "fit" / "checkpoint.json");
+        for (const auto& e : fs::directory_iterator(c.project / "fit"))  // the checkpoint's other files
+            if (e.path().filename() != "checkpoint.json" && e.path().filename() != pt_name)
+                fs::create_symlink(fs::absolute(e.path()), d / "fit" / e.path().filename());
         std::string m = bytes;
         auto at = [&] { return std::uniform_int_distribution<size_t>(0, m.size() - 1)(rng); };
         switch (i % 4) {

@@ -165,6 +165,20 @@ TEST_CASE("a damaged checkpoint is refused by every command; info says so") {
     CHECK(r.code == 0);
     CHECK(cli_t("info " + q(flip.string())).output.find("holds:    fit\n") != std::string::npos);
 
+    // The running residual damaged: named where its frames are read; info says so.
+    const fs::path resid = copy_project(c, work / "resid");
+    {
+        const json jr = json::parse(read_text_file(resid / "fit" / "checkpoint.json"));
+        const fs::path rf = resid / "fit" / jr.at("residual").get<std::string>();
+        std::string bytes = file_bytes(rf);
+        for (size_t i = bytes.size() / 2; i < bytes.size() / 2 + 16; ++i) bytes[i] ^= 0x5a;
+        std::ofstream(rf, std::ios::binary) << bytes;
+    }
+    r = cli_t("export " + q(resid.string()) + " --what sharp --out " + q((work / "o4").string()));
+    expect_clean_error(r, ".resid", "damaged");
+    r = cli_t("info " + q(resid.string()));
+    CHECK(r.output.find("checkpoint cannot be used") != std::string::npos);
+
     // checkpoint.json edited by hand: its own checksum.
     const fs::path edit = copy_project(c, work / "edit");
     json j = json::parse(read_text_file(edit / "fit" / "checkpoint.json"));
