@@ -207,6 +207,49 @@ TEST_CASE(
                          Error);
 }
 
+TEST_CASE(
+    "renders and output rules kept for the frames around the one asked for equal fresh ones") {
+    // An export asks for frame t's layers, then the rules (which render t - k ... t + k), then
+    // the rules again for its report: the engine keeps them. Asked in export order or backwards
+    // (where nothing kept is used), from the same checkpoint, they must be the same.
+    SteppedFit f = stepped_fit(8, 12, 4, "fit_render_memo");
+    FitEngine a(std::make_shared<FitData>(*f.data), f.opts),
+        b(std::make_shared<FitData>(*f.data), f.opts);
+    a.load_checkpoint(f.ck, FitEngine::CheckpointUse::Read);
+    b.load_checkpoint(f.ck, FitEngine::CheckpointUse::Read);
+    const int T = int(f.data->frames);
+    std::vector<Layers> la(T), lb(T);
+    std::vector<torch::Tensor> wa(T), wb(T), fa(T), fb(T);
+    for (int t = 0; t < T; ++t) {
+        la[t] = a.render_frame(t);
+        wa[t] = a.model_weight(t);
+        fa[t] = a.fallback_weight(t);
+        CHECK(a.model_weight(t).defined() == wa[t].defined());
+    }
+    for (int t = T - 1; t >= 0; --t) {
+        fb[t] = b.fallback_weight(t);
+        wb[t] = b.model_weight(t);
+        lb[t] = b.render_frame(t);
+    }
+    bool some_fallback = false;
+    for (int t = 0; t < T; ++t) {
+        INFO("frame " << t);
+        CHECK(torch::equal(la[t].sharp, lb[t].sharp));
+        CHECK(torch::equal(la[t].bg, lb[t].bg));
+        REQUIRE(wa[t].defined() == wb[t].defined());
+        if (wa[t].defined()) CHECK(torch::equal(wa[t], wb[t]));
+        REQUIRE(fa[t].defined() == fb[t].defined());
+        if (fa[t].defined()) CHECK(torch::equal(fa[t], fb[t]));
+        some_fallback = some_fallback || fa[t].defined();
+    }
+    CHECK(some_fallback);  // the rules had work to do
+    // A step changes the model: nothing kept from before it is used.
+    const Layers before = a.render_frame(1);
+    a.step();
+    const Layers after = a.render_frame(1);
+    CHECK_FALSE(torch::equal(before.sharp, after.sharp));
+}
+
 TEST_CASE("a reopened project rebuilds the model its fit trained: the masks are used as stored") {
     // The subject's track and atlas box come from the masks; the fit that prepared them and a
     // later export (which reads them back from 8-bit PNG) must agree to the pixel.

@@ -166,7 +166,8 @@ TEST_CASE("perframe: a model that steps itself, one frame a step; older checkpoi
         ar.save_to((dir / "checkpoint_v1.pt").string());
         nlohmann::json j = nlohmann::json::parse(read_text_file(dir / "checkpoint.json"));
         strip_checksums(j);  // as an earlier build wrote it
-        for (const char* key : {"residual", "residual_checksums", "optimizer", "optimizer_checksum"})
+        for (const char* key :
+             {"residual", "residual_checksums", "optimizer", "optimizer_checksum"})
             j.erase(key);
         j["version"] = 1;
         j["tensors"] = "checkpoint_v1.pt";

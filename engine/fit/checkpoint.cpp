@@ -114,9 +114,9 @@ void validate_checkpoint(const json& j, const fs::path& file, int64_t frames) {
         bool ok = sums.is_array() && sums.size() == size_t(frames);
         for (size_t i = 0; ok && i < sums.size(); ++i) ok = sums[i].is_string();
         if (!ok)
-            json_field_error(corrupt, "residual_checksums",
-                             "must hold one checksum for each of the " + std::to_string(frames) +
-                                 " frames");
+            json_field_error(
+                corrupt, "residual_checksums",
+                "must hold one checksum for each of the " + std::to_string(frames) + " frames");
     }
     checked_int(field("step"), number("step"), 0, INT64_MAX / 2);
     checked_range(field("elapsed_s"), number("elapsed_s"), 0, 1e12);
@@ -355,8 +355,8 @@ void FitEngine::save_checkpoint(const fs::path& dir) {
     for (const auto& e : fs::directory_iterator(dir)) {
         const std::string n = e.path().filename().string();
         const std::string ext = e.path().extension().string();
-        if (n.rfind("checkpoint_", 0) == 0 && (ext == ".pt" || ext == ".resid") &&
-            n != pt_name && n != optim_name && n != resid_name) {
+        if (n.rfind("checkpoint_", 0) == 0 && (ext == ".pt" || ext == ".resid") && n != pt_name &&
+            n != optim_name && n != resid_name) {
             std::error_code ec;
             fs::remove(e.path(), ec);
         }

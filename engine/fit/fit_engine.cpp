@@ -537,9 +537,29 @@ FitSnapshot FitEngine::snapshot() const {
 
 Layers FitEngine::render_frame(int t) {
     if (t < 0 || t >= m_data->frames) throw Error("frame " + std::to_string(t) + " out of range");
+    return rendered_layers(t);
+}
+
+Layers FitEngine::rendered_layers(int t) const {
+    const int64_t step = m_step;
+    {
+        std::lock_guard<std::mutex> lock(m_rendered_mutex);
+        for (const auto& r : m_rendered)
+            if (r.frame == t && r.step == step) return r.layers;
+    }
     torch::NoGradGuard g;
-    std::lock_guard<std::mutex> lock(m_model_mutex);
-    return m_model->render({t});
+    Layers L;
+    {
+        std::lock_guard<std::mutex> lock(m_model_mutex);
+        L = m_model->render({t});
+    }
+    // The frames of one output-rule window and the next: at 1080p a frame's layers are 116 MB.
+    const size_t keep = size_t(std::max(m_opts.fallback_frames, 0) + 2);
+    std::lock_guard<std::mutex> lock(m_rendered_mutex);
+    while (!m_rendered.empty() && (m_rendered.size() >= keep || m_rendered.front().step != step))
+        m_rendered.pop_front();
+    m_rendered.push_back({t, step, L});
+    return L;
 }
 
 }  // namespace refocus

@@ -181,7 +181,8 @@ class FitEngine {
     // Saves when checkpoint_seconds of training time have passed after the last save.
     bool maybe_checkpoint(const fs::path& dir);
 
-    // Inference (no gradients). Frame t's layers, its reblur, and the atlases.
+    // Inference (no gradients). Frame t's layers, its reblur, and the atlases. render_frame's
+    // tensors may be shared with the recent renders kept (rendered_layers): never written in place.
     Layers render_frame(int t);
     torch::Tensor reblur(const Layers& layers,
                          const std::vector<int64_t>& frames) const;  // [B,3,H,W]
@@ -308,6 +309,28 @@ class FitEngine {
         torch::Tensor map;
     };
     mutable std::deque<ChangeMap> m_change;
+    // The last frames rendered at the current step (render_frame, model_change): an export
+    // renders frame t for its plate, and the output rules render t − k … t + k around it.
+    struct RenderedFrame {
+        int frame;
+        int64_t step;
+        Layers layers;
+    };
+    mutable std::deque<RenderedFrame> m_rendered;
+    mutable std::mutex m_rendered_mutex;  // held only to look up or add, never while rendering
+    Layers rendered_layers(int t) const;
+    // The last frame's output rules at a step: an export applies them, then reports their shares
+    // (count_fallback), and each asks for the same maps.
+    struct RuleMemo {
+        int frame = -1;
+        int64_t step = -1;
+        bool has_fallback = false, has_weight = false;
+        torch::Tensor fallback, weight, gamma;
+    };
+    mutable RuleMemo m_rule_memo;
+    mutable std::mutex m_rule_memo_mutex;
+    torch::Tensor fallback_weight_now(int t) const;
+    torch::Tensor model_weight_now(int t, torch::Tensor* gamma) const;
     mutable std::vector<torch::Tensor> m_seen;  // sharpest_seen_map's cache, under the mutex below
     mutable std::vector<torch::Tensor> m_seen_range;  // focus_range_map's, filled beside it
     mutable std::vector<FocusSpan> m_spans;  // each layer's focus_span (fg, bg), filled beside it

@@ -10,6 +10,7 @@
 
 #include "fit/confidence.h"
 #include "fit/fit_engine.h"
+#include "util/timing.h"
 #include "fit/losses.h"
 #include "ops/morphology.h"
 
@@ -70,6 +71,20 @@ torch::Tensor layered_reach(const FitData& d, int t) {
 }  // namespace
 
 torch::Tensor FitEngine::fallback_weight(int t) const {
+    {
+        std::lock_guard<std::mutex> lock(m_rule_memo_mutex);
+        const RuleMemo& m = m_rule_memo;
+        if (m.frame == t && m.step == m_step && m.has_fallback) return m.fallback;
+    }
+    auto f = fallback_weight_now(t);
+    std::lock_guard<std::mutex> lock(m_rule_memo_mutex);
+    if (m_rule_memo.frame != t || m_rule_memo.step != m_step) m_rule_memo = RuleMemo{t, m_step};
+    m_rule_memo.fallback = f;
+    m_rule_memo.has_fallback = true;
+    return f;
+}
+
+torch::Tensor FitEngine::fallback_weight_now(int t) const {
     if (m_model->steps_itself() || !(m_opts.fallback_k > 0) || t < 0 || t >= m_data->frames)
         return {};
     // A fit that explains the clip leaves its own residual everywhere (resampling, the lens's
@@ -169,11 +184,7 @@ torch::Tensor FitEngine::model_change(int t) const {
     for (const auto& c : m_change)
         if (c.frame == t && std::abs(c.step - m_step) <= kChangeSteps) return c.map;
     torch::NoGradGuard g;
-    Layers L;
-    {
-        std::lock_guard<std::mutex> lock(m_model_mutex);
-        L = m_model->render({t});
-    }
+    const Layers L = rendered_layers(t);  // the export's render of the frame serves both
     // A damaged model has no change to measure; the export's own check names it.
     if (!torch::isfinite(L.sharp).all().item<bool>()) return {};
     auto d = (srgb_encode(L.sharp) - srgb_encode(reblur(L, {t}))).abs().mean(1, true);
@@ -267,11 +278,35 @@ torch::Tensor FitEngine::confidence(int t) const {
 }
 
 torch::Tensor FitEngine::model_weight(int t, torch::Tensor* gamma) const {
+    {
+        std::lock_guard<std::mutex> lock(m_rule_memo_mutex);
+        const RuleMemo& m = m_rule_memo;
+        if (m.frame == t && m.step == m_step && m.has_weight) {
+            if (gamma) *gamma = m.gamma;
+            return m.weight;
+        }
+    }
+    torch::Tensor g;
+    auto w = model_weight_now(t, &g);
+    if (gamma) *gamma = g;
+    std::lock_guard<std::mutex> lock(m_rule_memo_mutex);
+    if (m_rule_memo.frame != t || m_rule_memo.step != m_step) m_rule_memo = RuleMemo{t, m_step};
+    m_rule_memo.weight = w;
+    m_rule_memo.gamma = g;
+    m_rule_memo.has_weight = true;
+    return w;
+}
+
+torch::Tensor FitEngine::model_weight_now(int t, torch::Tensor* gamma) const {
     if (gamma) *gamma = torch::Tensor();
     if (t < 0 || t >= m_data->frames) return {};
+    StageClock clock;  // --debug timing
+    clock.next("rules: κ and τ (confidence)");
     auto w = confidence(t);
+    clock.next("rules: the sharpest view");
     auto best = m_opts.sharper_view_px > 0 ? sharpest_seen_map(t) : torch::Tensor();
     if (m_opts.keep_focus_px > 0 || best.defined()) {
+        clock.next("rules: γ and ν");
         const auto reach = layered_reach(*m_data, t);  // ν and γ share the dilation
         if (m_opts.keep_focus_px > 0) w = w * blur_need(reach, m_opts.keep_focus_px);
         if (best.defined()) {
@@ -301,6 +336,8 @@ void FitEngine::apply_fallback(Layers& L, int t, const Layers* model) const {
     // The lock's correction, from the model's plate, is added to every layer so that
     // α·F + (1 − α)·B takes it as the plate does.
     torch::Tensor lift;
+    StageClock clock;  // --debug timing
+    clock.next("rules: the low band's lock");
     if (lock) {
         // The input's low band is the sharp frame's only where the blur is far under the lock's
         // scale; elsewhere it is the reblur's. A fit that explains the clip says what the blur
@@ -318,6 +355,7 @@ void FitEngine::apply_fallback(Layers& L, int t, const Layers* model) const {
         auto fixed = lift.defined() ? base + lift : base;
         x = (w.defined() ? w * fixed + (1.0 - w) * in : fixed) + (x - base);
     };
+    clock.next("rules: the blend");
     blend(L.sharp, model ? model->sharp : torch::Tensor());
     blend(L.bg, model ? model->bg : torch::Tensor());
     blend(L.fg, model ? model->fg : torch::Tensor());

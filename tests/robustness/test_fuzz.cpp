@@ -256,7 +256,8 @@ void fuzz_tensor_files(const Clip& c, const fs::path& work, const json& base, st
         const fs::path d = work / ("t" + std::to_string(i));
         mutant_project(c, d, base);
         fs::copy_file(c.project / "fit" / "checkpoint.json", d / "fit" / "checkpoint.json");
-        for (const auto& e : fs::directory_iterator(c.project / "fit"))  // the checkpoint's other files
+        for (const auto& e :
+             fs::directory_iterator(c.project / "fit"))  // the checkpoint's other files
             if (e.path().filename() != "checkpoint.json" && e.path().filename() != pt_name)
                 fs::create_symlink(fs::absolute(e.path()), d / "fit" / e.path().filename());
         std::string m = bytes;
