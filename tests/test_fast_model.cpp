@@ -90,6 +90,16 @@ TEST_CASE("a subject seen smaller than in its atlas: the atlas is prefiltered fo
         CHECK(var_y == doctest::Approx(var_x).epsilon(1e-5));
     }
     // No minification (or a magnification): the atlas as it is; a flat atlas stays flat.
+    // The shifted-slice taps against LibTorch's depthwise conv2d, with gradients.
+    for (double s : {1.2, 1.9, 2.5, 4.0}) {
+        auto img = torch::rand({1, 3, 37, 53}, torch::requires_grad());
+        auto a = prefilter_for_footprint(img, s), b = prefilter_for_footprint_reference(img, s);
+        CHECK(torch::allclose(a, b, 1e-6, 1e-6));
+        auto w = torch::rand_like(a);
+        auto ga = torch::autograd::grad({(a * w).sum()}, {img})[0];
+        auto gb = torch::autograd::grad({(b * w).sum()}, {img})[0];
+        CHECK(torch::allclose(ga, gb, 1e-5, 1e-5));
+    }
     CHECK(prefilter_for_footprint(impulse, 1.0).is_same(impulse));
     CHECK(prefilter_for_footprint(impulse, 0.5).is_same(impulse));
     auto flat = torch::full({1, 3, 9, 12}, 0.4f);

@@ -395,30 +395,40 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
     m_composed_bg = m_composed_fg = torch::Tensor();
     m_windows_bg.clear();
     m_windows_fg.clear();
+    StageClock clock;  // --debug timing
+    clock.next("render: the mappings");
     const auto px_bg = coords(m_bg);
     out.uv_bg = to_grid(m_bg, px_bg);
     auto wins = windows ? paying_windows(m_bg, px_bg, frames, false) : std::vector<AtlasWindow>{};
     if (!wins.empty()) {
         out.bg = sample_windows(m_bg, px_bg, std::move(wins), training ? &m_windows_bg : nullptr);
     } else {
+        clock.next("render: compose the atlases");
         auto bg = compose(m_bg);
         m_composed_bg = training ? bg : torch::Tensor();
+        clock.next("render: sample the atlases");
         out.bg = sample_bicubic(bg.expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
     }
     if (!m_two_layers) {
         out.sharp = out.bg;
         return out;
     }
+    clock.next("render: the mappings");
     const auto px_fg = coords(m_fg);
     out.uv_fg = to_grid(m_fg, px_fg);
     wins = windows ? paying_windows(m_fg, px_fg, frames, true) : std::vector<AtlasWindow>{};
     if (!wins.empty()) {
         out.fg = sample_windows(m_fg, px_fg, std::move(wins), training ? &m_windows_fg : nullptr);
     } else {
+        clock.next("render: compose the atlases");
         auto fg = compose(m_fg);
         m_composed_fg = training ? fg : torch::Tensor();
-        out.fg = sample_bicubic(minified(fg, frames), out.uv_fg);
+        clock.next("render: prefilter the subject");
+        auto small = minified(fg, frames);
+        clock.next("render: sample the atlases");
+        out.fg = sample_bicubic(small, out.uv_fg);
     }
+    clock.next("render: the matte");
     auto idx = torch::tensor(frames, torch::kLong);
     // The shared matte through the foreground mapping (its grid [-1,1] spans the atlas, which
     // the half-resolution matte spans too) plus the frame's residual.

@@ -97,6 +97,8 @@ struct FastModelOptions {
 // its atlas): a separable Gaussian of variance (s² − 1)/12 texels² a side, edges repeated; the
 // image itself where that is under 0.01 (s ≤ ~1.06).
 torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s);
+// The same by LibTorch's depthwise conv2d: the reference the fast path is tested against.
+torch::Tensor prefilter_for_footprint_reference(const torch::Tensor& image, double s);
 // How far that prefilter reaches, texels (0 where it returns the image itself).
 int64_t prefilter_reach(double s);
 
