@@ -69,6 +69,14 @@ TEST_CASE("the need to fix: zero where no blur reaches, one within a blurred reg
     const int H = 40, W = 40;
     auto r = torch::zeros({H, W});
     r.narrow(0, 15, 10).narrow(1, 15, 10).fill_(6.0);  // a blurred square, 6 px
+    // The fused loop against the reference, to the last bit: smooth maps, noise, an outlier,
+    // one row or column.
+    torch::manual_seed(3);
+    for (const auto& m : {torch::rand({37, 53}) * 6.0, torch::rand({1, 1, 20, 31}) * 0.4,
+                          torch::zeros({16, 16}).index_put_({7, 9}, 12.5), torch::rand({1, 40}) * 3,
+                          torch::rand({40, 1}) * 3, torch::zeros({9, 9})}) {
+        CHECK(torch::equal(blur_reach(m), blur_reach_reference(m)));
+    }
     auto need = blur_need(blur_reach(r), 0.5);
     CHECK(px_at(need, 20, 20) == doctest::Approx(1.0));
     CHECK(px_at(need, 20, 28) == doctest::Approx(1.0));  // 4 px outside: its blur spills there

@@ -1,5 +1,6 @@
 #include "fit/confidence.h"
 
+#include <ATen/Parallel.h>
 #include <torch/nn/functional.h>
 #include <torch/torch.h>
 
@@ -143,13 +144,60 @@ torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px) {
     return feather(1.0 - smoothstep01((sharpest - trust_px) / trust_px), 4);
 }
 
-torch::Tensor blur_reach(const torch::Tensor& radius) {
+torch::Tensor blur_reach_reference(const torch::Tensor& radius) {
     torch::NoGradGuard g;
     auto r = radius.view({1, 1, radius.size(-2), radius.size(-1)}).to(torch::kFloat32);
     // Cone dilation max_q (r(q) − |p − q|_∞): as many 3x3 steps as the widest radius.
     const int steps = std::min(64, static_cast<int>(std::ceil(r.max().item<double>())));
     auto reach = r;
     for (int i = 0; i < steps; ++i) reach = torch::maximum(reach, max_filter(reach, 1) - 1.0);
+    return reach;
+}
+
+torch::Tensor blur_reach(const torch::Tensor& radius) {
+    torch::NoGradGuard g;
+    auto reach = radius.view({1, 1, radius.size(-2), radius.size(-1)})
+                     .to(torch::kFloat32)
+                     .contiguous()
+                     .clone();
+    const int steps = std::min(64, static_cast<int>(std::ceil(reach.max().item<double>())));
+    if (steps <= 0 || !torch::isfinite(reach).all().item<bool>())
+        return blur_reach_reference(radius);
+    // The reference's steps fused in place: a 3-wide max along x into `rows`, then along y,
+    // less 1, against the pixel itself. Max is exact and r − 1 is the same float subtraction, so
+    // the result is the reference's bit for bit (test_confidence), without four frame-sized
+    // allocations a step (at 1080p, 0.6 s of an export frame).
+    const int64_t H = reach.size(2), W = reach.size(3);
+    auto rows_t = torch::empty_like(reach);
+    float* a = reach.data_ptr<float>();
+    float* rows = rows_t.data_ptr<float>();
+    for (int i = 0; i < steps; ++i) {
+        at::parallel_for(0, H, 16, [&](int64_t y0, int64_t y1) {
+            for (int64_t y = y0; y < y1; ++y) {
+                const float* s = a + y * W;
+                float* d = rows + y * W;
+                for (int64_t x = 0; x < W; ++x) {
+                    float m = s[x];
+                    if (x > 0) m = std::max(m, s[x - 1]);
+                    if (x + 1 < W) m = std::max(m, s[x + 1]);
+                    d[x] = m;
+                }
+            }
+        });
+        // Row y of the result reads rows y − 1 … y + 1 of `rows` only, so it is written in place.
+        at::parallel_for(0, H, 16, [&](int64_t y0, int64_t y1) {
+            for (int64_t y = y0; y < y1; ++y) {
+                const float* up = rows + (y > 0 ? y - 1 : y) * W;
+                const float* mid = rows + y * W;
+                const float* dn = rows + (y + 1 < H ? y + 1 : y) * W;
+                float* d = a + y * W;
+                for (int64_t x = 0; x < W; ++x) {
+                    const float m = std::max(std::max(up[x], mid[x]), dn[x]) - 1.0f;
+                    d[x] = std::max(d[x], m);
+                }
+            }
+        });
+    }
     return reach;
 }
 

@@ -76,6 +76,9 @@ torch::Tensor seen_trust(const torch::Tensor& sharpest, double trust_px);
 // (iterated 3x3 max − 1 px), so that a blurred subject's spill over an in-focus wall counts.
 // [1,1,H,W] px; ν and γ read it.
 torch::Tensor blur_reach(const torch::Tensor& radius);
+// The same by LibTorch's max pooling, one allocation a step: the reference blur_reach's fused
+// loop is tested against (equal to the last bit).
+torch::Tensor blur_reach_reference(const torch::Tensor& radius);
 
 // ν: 0 where no blur of radius ≥ focus_px reaches the pixel, 1 from twice that. reach: blur_reach.
 torch::Tensor blur_need(const torch::Tensor& reach, double focus_px);
