@@ -39,6 +39,16 @@ std::pair<int64_t, int64_t> cells_read(int64_t from, int64_t len, int64_t L, int
     return span_of(lo, hi, n);
 }
 
+// The footprint prefilter's 2r + 1 taps, normalised: a Gaussian of σ² = (s² − 1)/12 texels², or
+// three exact taps (v/2, 1 − v, v/2) under ½ texel² (prefilter_reach says why).
+torch::Tensor footprint_taps(double s, int64_t r, const torch::TensorOptions& options) {
+    const double var = (s * s - 1.0) / 12.0;
+    auto x = torch::arange(-r, r + 1, options);
+    auto k = var < 0.5 ? torch::tensor({var / 2, 1 - var, var / 2}, options)
+                       : torch::exp(-x * x / (2 * var));
+    return k / k.sum();
+}
+
 }  // namespace
 
 int64_t prefilter_reach(double s) {
@@ -55,14 +65,10 @@ torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s) {
     // s ≈ 2.5). Sampling the atlas there without prefiltering aliases its fine texture (the
     // shirt's stripes). A texel already holds its own box (variance 1/12 a side), so the
     // footprint's box (s²/12) is met by a Gaussian of the rest: σ² = (s² − 1)/12 texels².
-    const double var = (s * s - 1.0) / 12.0;
     const int64_t r = prefilter_reach(s);
     if (r == 0) return image;
     if (image.scalar_type() != torch::kFloat32) return prefilter_for_footprint_reference(image, s);
-    auto x = torch::arange(-r, r + 1, image.options());
-    auto k = var < 0.5 ? torch::tensor({var / 2, 1 - var, var / 2}, image.options())
-                       : torch::exp(-x * x / (2 * var));
-    k = (k / k.sum()).contiguous();
+    const auto k = footprint_taps(s, r, image.options()).contiguous();
     std::vector<float> taps(k.data_ptr<float>(), k.data_ptr<float>() + k.numel());
     // Shifted slices, one multiply-add a tap: LibTorch's depthwise conv2d takes a slow path on
     // the CPU (3 s a frame for a 1080p subject atlas and 3 taps, against 0.1 s).
@@ -77,14 +83,10 @@ torch::Tensor prefilter_for_footprint(const torch::Tensor& image, double s) {
 }
 
 torch::Tensor prefilter_for_footprint_reference(const torch::Tensor& image, double s) {
-    const double var = (s * s - 1.0) / 12.0;
     const int64_t r = prefilter_reach(s);
     if (r == 0) return image;
     const int64_t C = image.size(1);
-    auto x = torch::arange(-r, r + 1, image.options());
-    auto k = var < 0.5 ? torch::tensor({var / 2, 1 - var, var / 2}, image.options())
-                       : torch::exp(-x * x / (2 * var));
-    k = k / k.sum();
+    const auto k = footprint_taps(s, r, image.options());
     auto img = F::pad(image, F::PadFuncOptions({r, r, r, r}).mode(torch::kReplicate));
     img = F::conv2d(img, k.view({1, 1, 1, -1}).expand({C, 1, 1, 2 * r + 1}),
                     F::Conv2dFuncOptions().groups(C));
