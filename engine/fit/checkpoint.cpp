@@ -290,7 +290,7 @@ bool FitEngine::has_checkpoint(const fs::path& dir) {
 
 void FitEngine::save_checkpoint(const fs::path& dir) {
     fs::create_directories(dir);
-    own_residual();  // a Read opening's optimizer state is read first, so that it is saved
+    finish_restore();  // a Read opening's optimizer state is read first, so that it is saved
     const std::string stem = "checkpoint_" + std::to_string(m_step);
     const std::string pt_name = stem + ".pt", optim_name = stem + ".optim.pt",
                       resid_name = stem + ".resid";
@@ -517,7 +517,7 @@ void FitEngine::load_checkpoint(const fs::path& dir, CheckpointUse use) {
     m_perm_pos = j.at("perm_pos").get<size_t>();
     if (use == CheckpointUse::Train) {
         clock.next("checkpoint: the optimizer and residual");
-        own_residual();
+        finish_restore();
     }
     const double rms = residual_rms(), trust = reported_trust();
     std::lock_guard<std::mutex> l2(m_snap_mutex);

@@ -59,7 +59,7 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
         // Frame by frame: a long clip's arrays are file mappings (util/mapped.h), and a check
         // over the whole clip at once would hold a clip-sized temporary.
         if (!m_data->finite_checked) check_finite(*m_data);
-        // The running residual is made at the first step (own_residual): an engine opened from
+        // The running residual is made at the first step (finish_restore): an engine opened from
         // its checkpoint reads the checkpoint's instead.
     }
     clock.end();
@@ -386,7 +386,7 @@ FitEngine::StepRender FitEngine::render_step(const std::vector<int64_t>& frames,
     return r;
 }
 
-void FitEngine::own_residual() {
+void FitEngine::finish_restore() {
     torch::NoGradGuard g;
     if (!m_pending_optim.empty()) {
         const fs::path file = m_pending_optim;
@@ -406,7 +406,7 @@ void FitEngine::own_residual() {
 
 void FitEngine::step() {
     if (done()) return;
-    own_residual();
+    finish_restore();
     const auto t0 = Clock::now();
     LossTerms terms;
     double loss_v = 0.0, psnr_v = 0.0;

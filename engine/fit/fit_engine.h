@@ -274,7 +274,7 @@ class FitEngine {
     void make_optimizer();
     // Before a step or a save: what a Read opening left on disk (the optimizer's state, the
     // residual copied out of its read-only mapping), then the residual made if there is none.
-    void own_residual();
+    void finish_restore();
     // m_resid[s]; a residual mapped from a checkpoint has frame s's checksum checked the first
     // time (refocus::Error naming the file on a mismatch). Undefined before the first step.
     torch::Tensor residual_frame(int s) const;
