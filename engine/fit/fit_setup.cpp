@@ -73,13 +73,28 @@ std::string stack_key(const Project& project, const FitData& d, const FitSetupOp
     // The radius is measured in the kernel's units: a pillbox's differs from the disk's.
     return std::to_string(std::hash<std::string>{}(prep)) + (d.has_subject ? "/2" : "/1") +
            (d.static_camera ? "/static" : "/moving") +
-           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v13" + settings_key;
+           (d.blur.kernel == BlurKernel::Pillbox ? "/pillbox" : "") + "/v14" + settings_key;
 }
 
 fs::path stack_frame_path(const Project& project, int t) {
     return fs::path(prepare_dir(project)) / format_pattern("stack_coc_%04d.exr", t);
 }
 
+// One frame of the estimate at the fit's size: maps made on a proxy are scaled up bilinearly and
+// by the proxy's scale (radii are lengths).
+torch::Tensor radius_at_size(const torch::Tensor& r, int64_t H, int64_t W, double scale) {
+    namespace F = torch::nn::functional;
+    if (r.size(0) == H && r.size(1) == W) return r;
+    return F::interpolate(r.view({1, 1, r.size(0), r.size(1)}),
+                          F::InterpolateFuncOptions()
+                              .size(std::vector<int64_t>{H, W})
+                              .mode(torch::kBilinear)
+                              .align_corners(false))[0][0]
+        .mul(scale)
+        .clamp_min(0);
+}
+
+// The cache holds the maps as estimated (on the proxy where there is one, with its scale).
 torch::Tensor load_stack_radius(const Project& project, const FitData& d, const std::string& key,
                                 double& fixed_focus_share) {
     const fs::path meta = fs::path(prepare_dir(project)) / "stack_coc.json";
@@ -88,11 +103,13 @@ torch::Tensor load_stack_radius(const Project& project, const FitData& d, const 
         const auto j = nlohmann::json::parse(read_text_file(meta));
         if (j.value("key", "") != key) return {};
         fixed_focus_share = j.value("fixed_focus_share", 0.0);
+        const double scale = j.value("scale", 1.0);
+        const int w = j.value("width", d.width), h = j.value("height", d.height);
         torch::Tensor maps = d.clip_array({d.frames, d.height, d.width}, "radius");
         for (int t = 0; t < d.frames; ++t) {
             Image m = read_image_file(stack_frame_path(project, t).string(), false).image;
-            if (m.width != d.width || m.height != d.height || m.channels != 1) return {};
-            maps[t].copy_(image_to_tensor(m)[0]);
+            if (m.width != w || m.height != h || m.channels != 1) return {};
+            maps[t].copy_(radius_at_size(image_to_tensor(m)[0], d.height, d.width, scale));
         }
         return maps;
     } catch (const std::exception&) {
@@ -101,15 +118,18 @@ torch::Tensor load_stack_radius(const Project& project, const FitData& d, const 
 }
 
 void save_stack_radius(const Project& project, const torch::Tensor& radius, const std::string& key,
-                       double fixed_focus_share) {
+                       double fixed_focus_share, double scale) {
     for (int t = 0; t < radius.size(0); ++t)
         write_image_file(stack_frame_path(project, t).string(),
                          tensor_to_image(radius[t].contiguous()), PixelFormat::ExrFloat, false);
-    write_file_atomic(
-        fs::path(prepare_dir(project)) / "stack_coc.json",
-        nlohmann::json{
-            {"key", key}, {"frames", radius.size(0)}, {"fixed_focus_share", fixed_focus_share}}
-            .dump(2));
+    write_file_atomic(fs::path(prepare_dir(project)) / "stack_coc.json",
+                      nlohmann::json{{"key", key},
+                                     {"frames", radius.size(0)},
+                                     {"width", radius.size(2)},
+                                     {"height", radius.size(1)},
+                                     {"scale", scale},
+                                     {"fixed_focus_share", fixed_focus_share}}
+                          .dump(2));
 }
 
 // [T,3,3] float64 frame → reference homographies. A locked-off camera maps every frame onto the
@@ -125,8 +145,8 @@ torch::Tensor homography_stack(const CameraMotion& motion, bool static_camera) {
 }
 
 // The focal-stack radius (stack_coc.h) of `d` estimated on its proxy (`small`, the motion
-// prepared there) and scaled up: bilinear, times the scale (its cost falls with the square of
-// the scale twice over: pixels, and the taps of blurs that shrink with them).
+// prepared there), at the proxy's size: its cost falls with the square of the scale twice over
+// (pixels, and the taps of blurs that shrink with them).
 torch::Tensor stack_radius_on_proxy(const FitData& d, const std::vector<Image>& small,
                                     const CameraMotion& motion, const ProxySize& px,
                                     const StackCocOptions& so, StackCocReport* report) {
@@ -137,24 +157,13 @@ torch::Tensor stack_radius_on_proxy(const FitData& d, const std::vector<Image>& 
     p.blur = d.blur;
     p.static_camera = d.static_camera;
     p.has_subject = d.has_subject;
-    const double s = std::sqrt(px.sx * px.sy);
     if (d.mask.defined())
         p.mask = F::interpolate(d.mask, F::InterpolateFuncOptions()
                                             .size(std::vector<int64_t>{px.height, px.width})
                                             .mode(torch::kArea))
                      .contiguous();
     p.to_ref = homography_stack(motion, d.static_camera);
-    const torch::Tensor r = estimate_radius_from_stack(p, so, report);
-    torch::Tensor out = d.clip_array({d.frames, d.height, d.width});
-    for (int64_t t = 0; t < d.frames; ++t)
-        out[t].copy_(F::interpolate(r.narrow(0, t, 1).unsqueeze(1),
-                                    F::InterpolateFuncOptions()
-                                        .size(std::vector<int64_t>{d.height, d.width})
-                                        .mode(torch::kBilinear)
-                                        .align_corners(false))[0][0]
-                         .mul(s)
-                         .clamp_min(0));
-    return out;
+    return estimate_radius_from_stack(p, so, report);
 }
 
 }  // namespace
@@ -452,17 +461,23 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                 StackCocReport report;
                 StackCocOptions so;
                 apply_settings(opts.settings, so);
-                d->radius = px.active()
-                                ? stack_radius_on_proxy(*d, small, prep.motion, px, so, &report)
+                const torch::Tensor r =
+                    px.active() ? stack_radius_on_proxy(*d, small, prep.motion, px, so, &report)
                                 : estimate_radius_from_stack(*d, so, &report);
-                if (!d->mapped_dir.empty() && !is_mapped(d->radius))
-                    d->radius = d->clip_array(d->radius.sizes(), "radius").copy_(d->radius);
+                const double scale = px.active() ? std::sqrt(px.sx * px.sy) : 1.0;
                 d->fixed_focus_share = report.fixed_focus_share;
                 log.info("radius: " + report.summary);
                 try {
-                    save_stack_radius(project, d->radius, key, d->fixed_focus_share);
+                    save_stack_radius(project, r, key, d->fixed_focus_share, scale);
                 } catch (const std::exception& e) {
                     log.info(std::string("radius: not cached (") + e.what() + ")");
+                }
+                if (!px.active() && (d->mapped_dir.empty() || is_mapped(r))) {
+                    d->radius = r;
+                } else {
+                    d->radius = d->clip_array({T, H, W}, "radius");
+                    for (int64_t t = 0; t < T; ++t)
+                        d->radius[t].copy_(radius_at_size(r[t], H, W, scale));
                 }
             }
             log.info(std::string("radius: ") + (cached.defined() ? "reused from prep/, " : "") +

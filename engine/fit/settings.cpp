@@ -235,6 +235,8 @@ const std::vector<Field<StackCocOptions>>& radius_fields() {
     static const std::vector<Field<O>> f = {
         {"radius.direct_blur", &O::direct_blur, 0, 1,
          "the reference path: blur at each radius directly, not by FFT (slow at large radii)"},
+        {"radius.subject_boxes", &O::subject_boxes, 0, 1,
+         "the subject's radius over a box around it in each frame (0: the whole frames)"},
         {"radius.absolute", &O::absolute, 0, 1,
          "add the composite's own blur, measured at its edges, to the stack's relative radius"},
         {"radius.floor_max", &O::floor_max, 0, 100,

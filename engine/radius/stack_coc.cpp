@@ -4,6 +4,7 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 
@@ -81,12 +82,14 @@ struct LayerComposite {
 //    content entering a pan later would take smeared border pixels as its "sharpest view".
 // 2. All-in-focus: local contrast (box-filtered squared Laplacian of luma) picks, softly, the
 //    sharpest frame at each pixel among the views whose contrast window lies inside their frame.
+// `canvas`: the canvas's box in reference coordinates (none: the frames' mapped box).
 LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
-                               const torch::Tensor& region, const StackCocOptions& o) {
+                               const torch::Tensor& region, const StackCocOptions& o,
+                               const AtlasBox* canvas) {
     ScopedTiming timing("radius: the composite");
     const int64_t T = d.frames, H = d.height, W = d.width;
     LayerComposite c;
-    const AtlasBox box_ref = mapped_frames_box(to_ref_in, H, W);
+    const AtlasBox box_ref = canvas ? *canvas : mapped_frames_box(to_ref_in, H, W);
     c.Hc = box_ref.height;
     c.Wc = box_ref.width;
     const int64_t Hc = c.Hc, Wc = c.Wc;
@@ -242,8 +245,9 @@ torch::Tensor relative_radius(const FitData& d, const LayerComposite& c,
     // the same luma) from taking its neighbours' radius; what stays uncovered takes the wide pass.
     Image cover_near, cover_far;
     Image near = weighted_guided_filter(guide, src, weight, o.spread_px, 1e-3, &cover_near);
-    Image far = weighted_guided_filter(
-        guide, src, weight, std::max<int>(o.spread_px, std::min(H, W) / 10), 1e-3, &cover_far);
+    const int far_px =
+        o.spread_far_px > 0 ? o.spread_far_px : std::max<int>(o.spread_px, std::min(H, W) / 10);
+    Image far = weighted_guided_filter(guide, src, weight, far_px, 1e-3, &cover_far);
     auto fn = image_to_tensor(near)[0], ff = image_to_tensor(far)[0];
     auto has_near = image_to_tensor(cover_near)[0] > 0, has_far = image_to_tensor(cover_far)[0] > 0;
     // Where nothing near was measured, no evidence of blur: radius 0 keeps the frame as it is
@@ -354,11 +358,29 @@ void add_absolute_floor(const FitData& d, const LayerComposite& c, const torch::
 // subject passing over a wall pixel does not become that pixel's "sharpest view", and the wall
 // does not lend the subject its radius.
 // `bank` holds the radius grid's kernels (both layers share it).
+// Where a layer's pass reads crops of the frames (layer_radius_in_boxes): the whole frames, their
+// registration and region build the composite over `canvas`, and crop t starts at `origin[t]`
+// (y, x) of frame t.
+struct CropSource {
+    const FitData* whole = nullptr;
+    torch::Tensor to_ref, region;
+    AtlasBox canvas;
+    std::vector<std::pair<int64_t, int64_t>> origin;
+};
+
 torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in,
                            const torch::Tensor& region, const UniformBlurBank& bank,
                            const StackCocOptions& o, std::string* report,
-                           double* fixed_share = nullptr) {
-    const LayerComposite c = layer_composite(d, to_ref_in, region, o);
+                           double* fixed_share = nullptr, const CropSource* crops = nullptr) {
+    LayerComposite c =
+        crops ? layer_composite(*crops->whole, crops->to_ref, crops->region, o, &crops->canvas)
+              : layer_composite(d, to_ref_in, region, o, nullptr);
+    if (crops) {
+        // The composite of the whole frames, each crop mapped onto it.
+        std::vector<torch::Tensor> shift;
+        for (const auto& [y, x] : crops->origin) shift.push_back(translation(double(x), double(y)));
+        c.to_canvas = torch::matmul(c.to_canvas, torch::stack(shift));
+    }
     std::vector<torch::Tensor> out;
     CompositeBlurs blurs;
     for (int64_t t = 0; t < d.frames; ++t)
@@ -366,6 +388,83 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in,
     ScopedTiming timing("radius: the floor");
     if (o.absolute) add_absolute_floor(d, c, region, out, o, report, fixed_share);
     return torch::stack(out).contiguous();
+}
+
+// The subject's pass over a box around it in each frame: its composite, blurs and costs over the
+// subject's box instead of the whole frame (1080p×240, a subject on 2% of the frame: the pass ran
+// on frames many times its size). The box reaches past the region by what any step reads around
+// a region pixel: the blur's support and the cost window, and the wide spread's window (its
+// first box pass then sees no weight the crop's border reflects, its second stays in the crop).
+// So each region pixel's radius is the whole frame's, and only the region's is used (the visible
+// surface takes the subject's radius inside its mask). Boxes of over half the frame take it whole.
+torch::Tensor layer_radius_in_boxes(const FitData& d, const torch::Tensor& to_ref,
+                                    const torch::Tensor& region, const UniformBlurBank& frame_bank,
+                                    const StackCocOptions& o, std::string* report) {
+    const int64_t T = d.frames, H = d.height, W = d.width;
+    const int far = std::max<int>(o.spread_px, std::min(H, W) / 10);
+    const int64_t margin =
+        std::max<int64_t>(far, int64_t(std::ceil(o.rmax + 1)) + o.window + o.contrast_window) + 2;
+    struct Box {
+        int64_t y0 = 0, x0 = 0, y1 = 0, x1 = 0;  // region's bounds, end exclusive; empty: none
+    };
+    std::vector<Box> boxes(T);
+    int64_t bh = 0, bw = 0;
+    for (int64_t t = 0; t < T; ++t) {
+        const auto m = region[t][0] > 0.5;
+        const auto rows = m.any(1).nonzero(), cols = m.any(0).nonzero();
+        if (rows.numel() == 0) continue;
+        Box& b = boxes[t];
+        b.y0 = rows.min().item<int64_t>(), b.y1 = rows.max().item<int64_t>() + 1;
+        b.x0 = cols.min().item<int64_t>(), b.x1 = cols.max().item<int64_t>() + 1;
+        bh = std::max(bh, b.y1 - b.y0), bw = std::max(bw, b.x1 - b.x0);
+    }
+    const int64_t ch = std::min(H, bh + 2 * margin), cw = std::min(W, bw + 2 * margin);
+    if (!o.subject_boxes || bh == 0 || ch * cw > H * W / 2)
+        return layer_radius(d, to_ref, region, frame_bank, o, report);
+    FitData c;
+    c.frames = int(T), c.height = int(ch), c.width = int(cw);
+    c.blur = d.blur;
+    c.static_camera = d.static_camera;
+    c.input = torch::empty({T, 3, ch, cw});
+    auto region_c = torch::empty({T, 1, ch, cw});
+    std::vector<torch::Tensor> mats;
+    std::vector<std::pair<int64_t, int64_t>> origin(T);
+    int64_t oy = 0, ox = 0;  // a frame without the subject keeps the box before it
+    for (int64_t t = 0; t < T; ++t) {
+        const Box& b = boxes[t];
+        if (b.y1 > b.y0) {
+            oy = std::clamp((b.y0 + b.y1 - ch) / 2, int64_t(0), H - ch);
+            ox = std::clamp((b.x0 + b.x1 - cw) / 2, int64_t(0), W - cw);
+        }
+        origin[t] = {oy, ox};
+        c.input[t].copy_(d.input[t].narrow(1, oy, ch).narrow(2, ox, cw));
+        region_c[t].copy_(region[t].narrow(1, oy, ch).narrow(2, ox, cw));
+        mats.push_back(
+            torch::matmul(to_ref[t].to(torch::kFloat64), translation(double(ox), double(oy))));
+    }
+    StackCocOptions oc = o;
+    oc.spread_far_px = far;
+    // The floor's cells as the whole frames' canvas lays them: their size from its side, and
+    // the crops' canvas grown to start on its grid.
+    const AtlasBox whole = mapped_frames_box(to_ref, H, W);
+    oc.floor_cell_side = std::min(whole.height, whole.width);
+    const int cell = std::max<int>(o.spread_px, int(oc.floor_cell_side / 15));
+    const torch::Tensor to_ref_c = torch::stack(mats);
+    const AtlasBox crops = mapped_frames_box(to_ref_c, ch, cw);
+    AtlasBox canvas = crops;
+    canvas.origin_x = whole.origin_x + std::floor((crops.origin_x - whole.origin_x) / cell) * cell;
+    canvas.origin_y = whole.origin_y + std::floor((crops.origin_y - whole.origin_y) / cell) * cell;
+    canvas.width = int64_t(std::ceil(crops.origin_x + crops.width - canvas.origin_x));
+    canvas.height = int64_t(std::ceil(crops.origin_y + crops.height - canvas.origin_y));
+    const UniformBlurBank bank(ch, cw, frame_bank.radii(), d.blur);
+    CropSource src;
+    src.whole = &d, src.to_ref = to_ref, src.region = region, src.canvas = canvas;
+    src.origin = origin;
+    const torch::Tensor rc = layer_radius(c, to_ref_c, region_c, bank, oc, report, nullptr, &src);
+    auto out = torch::zeros({T, H, W});
+    for (int64_t t = 0; t < T; ++t)
+        out[t].narrow(0, origin[t].first, ch).narrow(1, origin[t].second, cw).copy_(rc[t]);
+    return out;
 }
 
 }  // namespace
@@ -451,7 +550,7 @@ torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions
         mats.push_back(sc[t] == 1.0 && sc[0] == 1.0
                            ? translation(vx[0] - vx[t], vy[0] - vy[t])
                            : torch::matmul(from_track0, subject_to_track(vx[t], vy[t], sc[t])));
-    auto fg = layer_radius(d, torch::stack(mats), mask, bank, o, &line_fg);
+    auto fg = layer_radius_in_boxes(d, torch::stack(mats), mask, bank, o, &line_fg);
     if (report)
         report->summary = o.absolute ? "absolute floor: wall " + line_bg + "; subject " + line_fg
                                      : "relative only";

@@ -35,6 +35,13 @@ struct StackCocOptions {
     int contrast_window = 3;
     double min_confidence = 1e-4;  // cost spread (max − min) below this: not measured here
     int spread_px = 6;  // window of the confidence-weighted spread (then H/10 for the rest)
+    // The subject's pass over a box around it in each frame (off: over the whole frames, the
+    // reference; they agree inside the subject's region, docs/method.md, Radius estimation).
+    bool subject_boxes = true;
+    // Set by the subject's pass over boxes (not settings): the frame's sizes its crops keep for
+    // the wide spread's window and the floor's cells (0: the frame's and the canvas's own).
+    int spread_far_px = 0;
+    int64_t floor_cell_side = 0;
     double min_explained = 0.6;  // share of local variance the best match must explain to count
     // The composite's own (absolute) blur, measured at its edges (edge_blur.h) and added to the
     // stack's relative radius: r_t = sqrt(r0² + r_rel²) (second moments add). Off: relative only.

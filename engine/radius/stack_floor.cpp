@@ -27,7 +27,8 @@ struct FloorBins {
 
 FloorBins floor_bins(int64_t Hc, int64_t Wc, const StackCocOptions& o) {
     FloorBins b;
-    b.cell = std::max<int>(o.spread_px, std::min(Hc, Wc) / 15);
+    const int64_t side = o.floor_cell_side > 0 ? o.floor_cell_side : std::min(Hc, Wc);
+    b.cell = std::max<int>(o.spread_px, int(side / 15));
     b.Gh = (Hc + b.cell - 1) / b.cell;
     b.Gw = (Wc + b.cell - 1) / b.cell;
     b.bins.resize(b.Gh * b.Gw);
