@@ -29,6 +29,24 @@ namespace {
 // `zeros` pads outside the source with 0 (for validity maps), otherwise with the border value.
 torch::Tensor warp(const torch::Tensor& src, const torch::Tensor& m, int64_t H, int64_t W,
                    bool zeros = false) {
+    // A whole-pixel translation (a static camera's frames on their canvas) reads each source
+    // pixel itself: a shifted copy, padded as the sampler pads (the sampler's sum of taps at
+    // whole pixels equals it to float rounding).
+    const auto a = m.to(torch::kFloat64).contiguous();
+    const double* e = a.data_ptr<double>();
+    if (e[0] == 1 && e[1] == 0 && e[3] == 0 && e[4] == 1 && e[6] == 0 && e[7] == 0 && e[8] == 1 &&
+        e[2] == std::round(e[2]) && e[5] == std::round(e[5])) {
+        const int64_t dx = int64_t(e[2]), dy = int64_t(e[5]), h = src.size(2), w = src.size(3);
+        const int64_t top = std::max<int64_t>(0, -dy), left = std::max<int64_t>(0, -dx);
+        const int64_t bottom = std::max<int64_t>(0, dy + H - h),
+                      right = std::max<int64_t>(0, dx + W - w);
+        if (top < 1 << 20 && left < 1 << 20 && bottom < 1 << 20 && right < 1 << 20) {
+            auto opts = F::PadFuncOptions({left, right, top, bottom});
+            auto padded = F::pad(
+                src, zeros ? opts.mode(torch::kConstant).value(0) : opts.mode(torch::kReplicate));
+            return padded.narrow(2, dy + top, H).narrow(3, dx + left, W).contiguous();
+        }
+    }
     auto ys = torch::arange(H, torch::kFloat64), xs = torch::arange(W, torch::kFloat64);
     auto g = torch::meshgrid({ys, xs}, "ij");
     auto pts =
@@ -473,12 +491,38 @@ void split_radius_by_layer(FitData& d, int margin) {
     d.radius_fg = d.radius_bg = torch::Tensor();
     if (!d.has_subject || !d.mask.defined()) return;
     torch::NoGradGuard no_grad;
-    auto r = d.radius.unsqueeze(1);  // [T,1,H,W]
+    const int64_t H = d.height, W = d.width;
     // Frame by frame, into clip arrays: a long clip's maps need not fit in memory.
     auto out_fg = d.clip_array(d.radius.sizes(), "radius_fg"),
          out_bg = d.clip_array(d.radius.sizes(), "radius_bg");
     for (int64_t t = 0; t < d.frames; ++t) {
-        const auto fg = (d.mask.narrow(0, t, 1) > 0.5).to(torch::kFloat32);  // [1,1,H,W]
+        out_fg[t].copy_(d.radius[t]);
+        out_bg[t].copy_(d.radius[t]);
+        // Without a pixel of the subject both layers keep the visible surface's map. With one,
+        // only a box around it changes: every filter below reads at most `far` around the
+        // subject's pixels, so the box is read instead of the frame (the same values but for
+        // the fills, which a box's pyramid makes from the same neighbours).
+        const auto fg_frame = d.mask[t][0] > 0.5;  // [H,W]
+        const auto rows = fg_frame.any(1).nonzero(), cols = fg_frame.any(0).nonzero();
+        if (rows.numel() == 0) continue;
+        const int64_t y0 = rows.min().item<int64_t>(), y1 = rows.max().item<int64_t>() + 1,
+                      x0 = cols.min().item<int64_t>(), x1 = cols.max().item<int64_t>() + 1;
+        const double area = fg_frame.sum().item<double>();
+        const int k = std::max(margin, int(0.3 * std::sqrt(area / M_PI)));
+        const int reach = std::max(margin, int(std::sqrt(area / M_PI)));
+        auto box = [&](const torch::Tensor& x, int64_t g) {  // [.., H, W] → its box grown by g
+            const int64_t by0 = std::max<int64_t>(0, y0 - g), bx0 = std::max<int64_t>(0, x0 - g);
+            return x.narrow(-2, by0, std::min(H, y1 + g) - by0)
+                .narrow(-1, bx0, std::min(W, x1 + g) - bx0);
+        };
+        // The subject's radius is read where its mask is surest (its core); far from the mask
+        // its layer takes the visible surface's, so the box reaches as far as the subject's
+        // radius does.
+        const double rmax_near = box(d.radius[t], k + margin + 2).max().item<double>();
+        const int64_t g = std::max<int64_t>(reach + int64_t(std::ceil(rmax_near)) + 2, k) + 2;
+        const auto r = box(d.radius[t], g).unsqueeze(0).unsqueeze(0);  // [1,1,h,w]
+        const auto fg = box(fg_frame, g).to(torch::kFloat32).unsqueeze(0).unsqueeze(0);
+        const bool whole = r.size(2) == H && r.size(3) == W;
         auto keep_fg = erode(fg, margin), keep_bg = erode(1.0 - fg, margin);
         torch::Tensor fg_region;  // where the subject's radius applies (undefined: everywhere)
         // An automatic mask is a blob around a blurred subject (wider than the silhouette by
@@ -487,36 +531,32 @@ void split_radius_by_layer(FitData& d, int margin) {
         // part. The subject's radius is read where the mask is surest (its core) and only
         // values near it stay the subject's; the same values next to the mask leave the wall's
         // (docs/method.md, Layered reblur).
-        const double area = fg.sum().item<double>();
-        const int k = std::max(margin, int(0.3 * std::sqrt(area / M_PI)));
         auto core = erode(fg, k);
         if (core.sum().item<double>() < 1) core = keep_fg;
         if (core.sum().item<double>() >= 1) {
-            const auto rt = r[t].unsqueeze(0);
-            const double r_core = rt.masked_select(core > 0.5).median().item<double>();
+            const double r_core = r.masked_select(core > 0.5).median().item<double>();
             const double tol = std::max(1.0, 0.25 * r_core);
-            auto like_subject = ((rt - r_core).abs() <= tol).to(torch::kFloat32);
+            auto like_subject = ((r - r_core).abs() <= tol).to(torch::kFloat32);
             auto fg_kept = keep_fg * like_subject;
             keep_fg = fg_kept.sum().item<double>() >= 1 ? fg_kept : core;
-            const int reach = std::max(margin, int(std::sqrt(area / M_PI)));
             auto near = max_filter(fg, reach);
             auto bg_kept = keep_bg * (1.0 - near * like_subject);
-            if (bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
+            if (!whole || bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
             // Far from the mask the subject's layer is transparent and its radius only costs
             // time (the lens blur scatters every source pixel over its radius): there it takes
             // the visible surface's (docs/method.md, Layered reblur).
             const int far = reach + int(std::ceil(r_core)) + 2;
             fg_region = max_filter(fg, far);
         }
-        // A frame without a sure pixel of a layer keeps the visible surface's map for it.
+        // A layer without a sure pixel keeps the visible surface's map.
         auto one = [&](const torch::Tensor& sure) {
-            return sure.sum().item<double>() > 0 ? fill_from(r[t].unsqueeze(0), sure)[0][0]
-                                                 : d.radius[t];
+            return sure.sum().item<double>() > 0 ? fill_from(r, sure)[0][0] : r[0][0];
         };
-        out_fg[t].copy_(fg_region.defined()
-                            ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), d.radius[t])
-                            : one(keep_fg));
-        out_bg[t].copy_(one(keep_bg));
+        box(out_fg[t], g)
+            .copy_(fg_region.defined() ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), r[0][0])
+                                       : one(keep_fg));
+        // Outside the box the wall's layer is sure everywhere (a fill keeps what it is given).
+        box(out_bg[t], g).copy_(one(keep_bg));
     }
     d.radius_fg = out_fg;
     d.radius_bg = out_bg;
