@@ -124,7 +124,7 @@ TEST_CASE("a static camera's hand shake is found; a locked-off camera keeps the 
     // Prepare calls a camera static when its feature homographies move the corners < 2 px, and
     // the fit then maps frames by the identity. A hand-held shot shakes by a pixel (synth walkout:
     // 1.5 px, which cost it 0.4 dB); the ECC pass against the reblurred atlas finds the shake.
-    const int64_t T = 5, H = 48, W = 64;
+    const int64_t H = 48, W = 64;
     torch::manual_seed(4);
     namespace F = torch::nn::functional;
     auto texture = F::interpolate(torch::rand({1, 3, H / 3, W / 3}),
@@ -132,7 +132,9 @@ TEST_CASE("a static camera's hand shake is found; a locked-off camera keeps the 
                                       .size(std::vector<int64_t>{H + 16, W + 16})
                                       .mode(torch::kBilinear)
                                       .align_corners(false));
-    const double sx[T] = {0.0, 0.9, -1.2, 0.5, 1.4}, sy[T] = {0.0, -0.6, 0.8, 1.1, -0.4};
+    // Five frames (a short clip: every frame aligned), then 60 (a long one: a sample first).
+    int64_t T = 5;
+    std::vector<double> sx = {0.0, 0.9, -1.2, 0.5, 1.4}, sy = {0.0, -0.6, 0.8, 1.1, -0.4};
     auto make = [&](bool shake) {
         auto d = std::make_shared<FitData>();
         d->frames = T, d->height = H, d->width = W;
@@ -156,27 +158,51 @@ TEST_CASE("a static camera's hand shake is found; a locked-off camera keeps the 
         return d;
     };
     FastModelOptions o;
-    {
-        auto d = make(true);
-        FastModel m(*d, o);
-        auto A = m.state().at("bg_to_atlas");
-        for (int64_t t = 1; t < T; ++t) {
-            const double ex = A[t][0][2].item<double>() - A[0][0][2].item<double>();
-            const double ey = A[t][1][2].item<double>() - A[0][1][2].item<double>();
-            INFO("frame " << t << ": found (" << ex << ", " << ey << "), shaken by (" << sx[t]
-                          << ", " << sy[t] << ")");
-            CHECK(std::abs(ex - sx[t]) < 0.15);
-            CHECK(std::abs(ey - sy[t]) < 0.15);
+    auto check = [&] {
+        {
+            auto d = make(true);
+            FastModel m(*d, o);
+            auto A = m.state().at("bg_to_atlas");
+            // A long clip's frames: within 0.15 px on average, 0.3 at most (a frame shaken by
+            // under 0.3 px may keep the identity).
+            double sum = 0;
+            for (int64_t t = 1; t < T; ++t) {
+                const double ex = A[t][0][2].item<double>() - A[0][0][2].item<double>();
+                const double ey = A[t][1][2].item<double>() - A[0][1][2].item<double>();
+                INFO("frame " << t << ": found (" << ex << ", " << ey << "), shaken by (" << sx[t]
+                              << ", " << sy[t] << ")");
+                const double e = std::max(std::abs(ex - sx[t]), std::abs(ey - sy[t]));
+                CHECK(e < (T > 48 ? 0.3 : 0.15));
+                sum += e;
+            }
+            CHECK(sum / double(T - 1) < 0.15);
         }
-    }
-    {
-        auto d = make(false);
-        FastModel m(*d, o);
-        auto A = m.state().at("bg_to_atlas");
-        CHECK(torch::equal(A, A[0].expand_as(A)));  // exactly the identity (up to the atlas origin)
-        CHECK(A[0][0][0].item<double>() == 1.0);
-        CHECK(A[0][0][1].item<double>() == 0.0);
-    }
+        {
+            auto d = make(false);
+            FastModel m(*d, o);
+            auto A = m.state().at("bg_to_atlas");
+            CHECK(torch::equal(
+                A, A[0].expand_as(A)));  // exactly the identity (up to the atlas origin)
+            CHECK(A[0][0][0].item<double>() == 1.0);
+            CHECK(A[0][0][1].item<double>() == 0.0);
+            const bool noted = std::any_of(
+                m.notes.begin(), m.notes.end(),
+                [](const std::string& n) { return n.find("locked off") != std::string::npos; });
+            CHECK(noted == (T > 48));  // a long clip's sample said so
+            // A fitted project opened (export): no alignment, the checkpoint's geometry replaces
+            // it.
+            FastModelOptions opened = o;
+            opened.align_rounds = 0;
+            opened.restore_only = true;
+            CHECK_NOTHROW(FastModel(*d, opened));
+        }
+    };
+    check();
+    T = 60;
+    sx.assign(T, 0.0), sy.assign(T, 0.0);
+    for (int64_t t = 1; t < T; ++t)
+        sx[t] = 1.4 * std::sin(1.7 * t), sy[t] = 1.1 * std::cos(2.3 * t);
+    check();
 }
 
 namespace {

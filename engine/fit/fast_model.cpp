@@ -167,13 +167,37 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     if (!d.static_camera || m_opts.static_align) {
         const auto before = m_bg.to_atlas.clone();
         clock.next("set-up: align the background", "aligning the background's frames");
-        refine_alignment(m_bg, bg_weight, bg_region, d.static_camera ? 2.0 : 4.0, d.static_camera);
         // Corrections under 0.3 px are ECC's noise on a locked-off camera and are dropped: the
         // identity keeps its frames from flickering (docs/method.md, What is skipped when).
-        if (d.static_camera &&
-            (m_bg.to_atlas - before).narrow(1, 0, 2).narrow(2, 2, 1).abs().max().item<double>() <
-                0.3 * m_bg.scale)
+        auto still = [&] {
+            return (m_bg.to_atlas - before)
+                       .narrow(1, 0, 2)
+                       .narrow(2, 2, 1)
+                       .abs()
+                       .max()
+                       .item<double>() < 0.3 * m_bg.scale;
+        };
+        // On a long clip a camera judged static is first aligned on a sample of its frames, one
+        // round: where none moves by 0.3 px the camera is locked off, and the rest would be too.
+        constexpr int64_t kSample = 24;
+        bool locked = false;
+        if (d.static_camera && T > 2 * kSample && m_opts.align_rounds > 0) {
+            std::vector<int64_t> sample;
+            const int64_t stride = (T + kSample - 1) / kSample;
+            for (int64_t t = stride / 2; t < T; t += stride) sample.push_back(t);
+            refine_alignment(m_bg, bg_weight, bg_region, 2.0, true, &sample, 1);
+            locked = still();
             m_bg.to_atlas = before;
+            if (locked)
+                notes.push_back("fit (fast): static camera, locked off (no frame of " +
+                                std::to_string(sample.size()) +
+                                " sampled moves by 0.3 px): the background is not aligned");
+        }
+        if (!locked) {
+            refine_alignment(m_bg, bg_weight, bg_region, d.static_camera ? 2.0 : 4.0,
+                             d.static_camera);
+            if (d.static_camera && still()) m_bg.to_atlas = before;
+        }
     }
     debug_memory("fast model: aligned");
     if (m_bg.learn_warp && m_opts.flow_warp && d.flow_fwd.defined() && T > 1) {

@@ -240,9 +240,11 @@ class FastModel : public FitModel {
     // Refines each frame's mapping by ECC image alignment (Evangelidis & Psarakis 2008) of the
     // reblurred fused atlas against the input frame, inside `region` ([T,1,H,W] > 0.5), then
     // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp
-    // atlas shifted by a pixel scores worse than the blurred input.
+    // atlas shifted by a pixel scores worse than the blurred input. `only` (if given): the frames
+    // aligned, the others keep their mapping; `rounds` < 0: fast.align_rounds.
     void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                          double max_shift, bool static_camera = false);
+                          double max_shift, bool static_camera = false,
+                          const std::vector<int64_t>* only = nullptr, int rounds = -1);
     // Checkpoints hold each atlas's geometry (its box and per-frame mapping) beside its texels:
     // a reopened project keeps what its fit trained, even where this build would place the
     // atlas differently. A state without geometry keeps the one just computed from the data.

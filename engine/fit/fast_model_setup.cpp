@@ -218,7 +218,8 @@ torch::Tensor FastModel::fuse_regions(const Atlas& a, const FrameFn& weight,
 }
 
 void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                                 double max_shift, bool static_camera) {
+                                 double max_shift, bool static_camera,
+                                 const std::vector<int64_t>* only, int rounds) {
     const int64_t T = m_data.frames, H = m_data.height, W = m_data.width;
     // ECC runs on a proxy at most align_width px wide: its window and iterations are tuned in
     // px, and the reblur's cost would grow with the square of the scale twice over. Proxy pixel
@@ -250,7 +251,8 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
         l = (0.299 * l[0] + 0.587 * l[1] + 0.114 * l[2]).contiguous();
         return cv::Mat(int(l.size(0)), int(l.size(1)), CV_32F, l.data_ptr<float>()).clone();
     };
-    for (int round = 0; round < m_opts.align_rounds; ++round) {
+    const int n_rounds = rounds < 0 ? m_opts.align_rounds : rounds;
+    for (int round = 0; round < n_rounds; ++round) {
         torch::Tensor fused;
         {
             ScopedTiming timing("align: fuse");
@@ -268,6 +270,10 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
         std::vector<torch::Tensor> mats;
         for (int64_t t = 0; t < T; ++t) {
             auto m = a.to_atlas[t].to(torch::kFloat64);
+            if (only && !std::binary_search(only->begin(), only->end(), t)) {
+                mats.push_back(m);
+                continue;
+            }
             auto rmask = (shrink(region[t])[0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
             const cv::Mat full_mask(int(h), int(w), CV_8U, rmask.data_ptr<uint8_t>());
             if (cv::countNonZero(full_mask) < 64) {
