@@ -11,6 +11,7 @@
 
 #include "io/clip.h"
 #include "fit/fit_setup.h"
+#include "model/atlas_geometry.h"
 #include "radius/stack_coc.h"
 #include "radius/stack_costs.h"
 #include "project/project.h"
@@ -356,6 +357,21 @@ TEST_CASE("the subject's radius over boxes around it equals the pass over the wh
         CHECK(rb.summary == rw.summary);
         // Outside the subject both are the wall's pass.
         CHECK(torch::equal(boxes.masked_select(~in), ref.masked_select(~in)));
+    }
+}
+
+TEST_CASE("a whole-pixel shift onto the canvas, copied, equals the sampler's") {
+    torch::manual_seed(11);
+    const auto src = torch::rand({1, 3, 20, 30}), ones = torch::ones({1, 1, 20, 30});
+    for (auto [dx, dy] : {std::pair{0, 0}, {-2, -2}, {3, -1}, {-5, 4}, {31, 0}}) {
+        const auto m = translation(dx, dy);
+        for (bool zeros : {false, true}) {
+            const auto& x = zeros ? ones : src;
+            const auto copy = warp_to_canvas(x, m, 24, 34, zeros),
+                       sampled = warp_to_canvas(x, m, 24, 34, zeros, false);
+            INFO("shift (" << dx << ", " << dy << "), " << (zeros ? "zeros" : "border"));
+            CHECK((copy - sampled).abs().max().item<float>() < 1e-5f);
+        }
     }
 }
 

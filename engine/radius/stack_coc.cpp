@@ -25,41 +25,6 @@ namespace F = torch::nn::functional;
 
 namespace {
 
-// Warp [N,C,h,w] images onto an H x W grid: output pixel p reads the source at m·p (bicubic).
-// `zeros` pads outside the source with 0 (for validity maps), otherwise with the border value.
-torch::Tensor warp(const torch::Tensor& src, const torch::Tensor& m, int64_t H, int64_t W,
-                   bool zeros = false) {
-    // A whole-pixel translation (a static camera's frames on their canvas) reads each source
-    // pixel itself: a shifted copy, padded as the sampler pads (the sampler's sum of taps at
-    // whole pixels equals it to float rounding).
-    const auto a = m.to(torch::kFloat64).contiguous();
-    const double* e = a.data_ptr<double>();
-    if (e[0] == 1 && e[1] == 0 && e[3] == 0 && e[4] == 1 && e[6] == 0 && e[7] == 0 && e[8] == 1 &&
-        e[2] == std::round(e[2]) && e[5] == std::round(e[5])) {
-        const int64_t dx = int64_t(e[2]), dy = int64_t(e[5]), h = src.size(2), w = src.size(3);
-        const int64_t top = std::max<int64_t>(0, -dy), left = std::max<int64_t>(0, -dx);
-        const int64_t bottom = std::max<int64_t>(0, dy + H - h),
-                      right = std::max<int64_t>(0, dx + W - w);
-        if (top < 1 << 20 && left < 1 << 20 && bottom < 1 << 20 && right < 1 << 20) {
-            auto opts = F::PadFuncOptions({left, right, top, bottom});
-            auto padded = F::pad(
-                src, zeros ? opts.mode(torch::kConstant).value(0) : opts.mode(torch::kReplicate));
-            return padded.narrow(2, dy + top, H).narrow(3, dx + left, W).contiguous();
-        }
-    }
-    auto ys = torch::arange(H, torch::kFloat64), xs = torch::arange(W, torch::kFloat64);
-    auto g = torch::meshgrid({ys, xs}, "ij");
-    auto pts =
-        torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({H * W}, torch::kFloat64)}, 0);
-    auto p = torch::matmul(m, pts);
-    auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, H, W, 2});
-    // Normalised by the source's size (align_corners = false).
-    auto scale = torch::tensor({2.0 / src.size(3), 2.0 / src.size(2)}, torch::kFloat64);
-    auto grid = ((xy + 0.5) * scale - 1.0).to(torch::kFloat32).expand({src.size(0), H, W, 2});
-    return torch::grid_sampler(src, grid, zeros ? 0 : 2, zeros ? 0 : 1,
-                               false);  // bilinear/zeros or bicubic/border
-}
-
 // Where a [N,1,H,W] 0/1 map is 1 over the whole (2r+1)² window around a pixel.
 torch::Tensor erode(const torch::Tensor& valid, int r) {
     return min_filter(valid, r);
@@ -125,8 +90,8 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
     auto view = [&](int64_t t, bool keep_valid) {
         View v;
         auto inv = torch::inverse(c.to_canvas[t]);
-        v.reg = warp(d.input[t].unsqueeze(0), inv, Hc, Wc);
-        auto reg_valid = (warp(ones, inv, Hc, Wc, true)[0] > 0.999).to(torch::kFloat32);
+        v.reg = warp_to_canvas(d.input[t].unsqueeze(0), inv, Hc, Wc);
+        auto reg_valid = (warp_to_canvas(ones, inv, Hc, Wc, true)[0] > 0.999).to(torch::kFloat32);
         if (keep_valid) c.reg_valid.push_back(reg_valid);
         auto luma =
             (0.299 * v.reg.select(1, 0) + 0.587 * v.reg.select(1, 1) + 0.114 * v.reg.select(1, 2))
@@ -136,7 +101,7 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
         v.valid = erode(reg_valid.unsqueeze(0), o.contrast_window + 1);
         v.contrast = box_filter(lap.pow(2), o.contrast_window) * v.valid;
         if (region.defined())
-            v.own = (warp(region[t].unsqueeze(0), inv, Hc, Wc, true).clamp(0, 1) > 0.5)
+            v.own = (warp_to_canvas(region[t].unsqueeze(0), inv, Hc, Wc, true).clamp(0, 1) > 0.5)
                         .to(torch::kFloat32);
         return v;
     };
@@ -188,11 +153,11 @@ struct CompositeBlurs {
                   const UniformBlurBank& bank, const StackCocOptions& o) {
         if (key.defined() && torch::equal(key, c.to_canvas[t])) return;
         key = c.to_canvas[t].clone();
-        aif_t = warp(c.aif.unsqueeze(0), key, H, W)[0].contiguous();
+        aif_t = warp_to_canvas(c.aif.unsqueeze(0), key, H, W)[0].contiguous();
         // Pixels whose matching window reads canvas the composite does not cover are not
         // measured.
-        seen =
-            erode(warp(c.covered, key, H, W, true).gt(0.999).to(torch::kFloat32), o.window)[0][0];
+        seen = erode(warp_to_canvas(c.covered, key, H, W, true).gt(0.999).to(torch::kFloat32),
+                     o.window)[0][0];
         spectrum = o.direct_blur ? torch::Tensor() : bank.spectrum(aif_t);
         blurs.clear();
         keep = int64_t(bank.radii().size()) * aif_t.numel() * 4 <= kMaxBytes;
@@ -288,12 +253,12 @@ torch::Tensor relative_max(const FitData& d, const LayerComposite& c, const torc
     std::vector<torch::Tensor> rel_views, clear_views;
     for (int64_t t = 0; t < T; ++t) {
         auto inv = torch::inverse(c.to_canvas[t]);
-        auto rel = warp(out[t].view({1, 1, H, W}), inv, Hc, Wc, true);
+        auto rel = warp_to_canvas(out[t].view({1, 1, H, W}), inv, Hc, Wc, true);
         relmax = torch::maximum(relmax, rel);
         if (region.defined()) {
-            auto clear = warp(erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0),
-                                    o.floor_gate_clear_px),
-                              inv, Hc, Wc, true)
+            auto clear = warp_to_canvas(erode((region[t] > 0.5).to(torch::kFloat32).unsqueeze(0),
+                                              o.floor_gate_clear_px),
+                                        inv, Hc, Wc, true)
                              .gt(0.999)
                              .to(torch::kFloat32);
             relmax_clear = torch::maximum(relmax_clear, rel * clear);
@@ -354,16 +319,16 @@ void add_absolute_floor(const FitData& d, const LayerComposite& c, const torch::
         *report = line + (floor.max().item<double>() > 0 ? std::string(buf) : std::string());
     }
     for (int64_t t = 0; t < T; ++t) {
-        auto f0 = warp(floor, c.to_canvas[t], H, W)[0][0].clamp_min(0);
+        auto f0 = warp_to_canvas(floor, c.to_canvas[t], H, W)[0][0].clamp_min(0);
         auto r = torch::sqrt(out[t] * out[t] + f0 * f0);  // second moments add
         if (spectral) {
             // Under a floor from tile spectra the layer is never sharper than the floor, so the
             // floor holds as a least radius where the gate closes; where it is open, the radius
             // is the floor itself (the relative readings there are the stack's error, and added
             // in quadrature they put frame-to-frame jitter on a static wall).
-            auto u = warp(ungated, c.to_canvas[t], H, W)[0][0].clamp_min(0);
+            auto u = warp_to_canvas(ungated, c.to_canvas[t], H, W)[0][0].clamp_min(0);
             r = torch::maximum(r, u);
-            auto g = warp(gate, c.to_canvas[t], H, W)[0][0].clamp(0, 1);
+            auto g = warp_to_canvas(gate, c.to_canvas[t], H, W)[0][0].clamp(0, 1);
             r = g * u + (1 - g) * r;
         }
         out[t] = r.clamp(0.0, o.rmax);
@@ -486,6 +451,37 @@ torch::Tensor layer_radius_in_boxes(const FitData& d, const torch::Tensor& to_re
 }
 
 }  // namespace
+
+torch::Tensor warp_to_canvas(const torch::Tensor& src, const torch::Tensor& m, int64_t H, int64_t W,
+                             bool zeros, bool shifts_as_copies) {
+    // A whole-pixel translation (a static camera's frames on their canvas) reads each source
+    // pixel itself: a shifted copy, padded as the sampler pads (the sampler's sum of taps at
+    // whole pixels equals it to float rounding).
+    const auto a = m.to(torch::kFloat64).contiguous();
+    const double* e = a.data_ptr<double>();
+    if (shifts_as_copies && e[0] == 1 && e[1] == 0 && e[3] == 0 && e[4] == 1 && e[6] == 0 &&
+        e[7] == 0 && e[8] == 1 && e[2] == std::round(e[2]) && e[5] == std::round(e[5])) {
+        const int64_t dx = int64_t(e[2]), dy = int64_t(e[5]), h = src.size(2), w = src.size(3);
+        const int64_t top = std::max<int64_t>(0, -dy), left = std::max<int64_t>(0, -dx);
+        const int64_t bottom = std::max<int64_t>(0, dy + H - h),
+                      right = std::max<int64_t>(0, dx + W - w);
+        auto opts = F::PadFuncOptions({left, right, top, bottom});
+        auto padded = F::pad(
+            src, zeros ? opts.mode(torch::kConstant).value(0) : opts.mode(torch::kReplicate));
+        return padded.narrow(2, dy + top, H).narrow(3, dx + left, W).contiguous();
+    }
+    auto ys = torch::arange(H, torch::kFloat64), xs = torch::arange(W, torch::kFloat64);
+    auto g = torch::meshgrid({ys, xs}, "ij");
+    auto pts =
+        torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({H * W}, torch::kFloat64)}, 0);
+    auto p = torch::matmul(m, pts);
+    auto xy = (p.narrow(0, 0, 2) / p.narrow(0, 2, 1)).t().view({1, H, W, 2});
+    // Normalised by the source's size (align_corners = false).
+    auto scale = torch::tensor({2.0 / src.size(3), 2.0 / src.size(2)}, torch::kFloat64);
+    auto grid = ((xy + 0.5) * scale - 1.0).to(torch::kFloat32).expand({src.size(0), H, W, 2});
+    return torch::grid_sampler(src, grid, zeros ? 0 : 2, zeros ? 0 : 1,
+                               false);  // bilinear/zeros or bicubic/border
+}
 
 void split_radius_by_layer(FitData& d, int margin) {
     d.radius_fg = d.radius_bg = torch::Tensor();

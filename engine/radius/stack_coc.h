@@ -80,6 +80,12 @@ struct StackCocReport {
         0;  // the wall's (one layer: the frame's) share with the floor applied
 };
 
+// Warp [N,C,h,w] images onto an H x W grid: output pixel p reads the source at m·p (m [3,3]
+// float64; bicubic, border padding; `zeros`: bilinear and 0 outside, for validity maps). A
+// whole-pixel translation is a shifted copy (`shifts_as_copies` off: the sampler, the reference).
+torch::Tensor warp_to_canvas(const torch::Tensor& src, const torch::Tensor& m, int64_t H, int64_t W,
+                             bool zeros = false, bool shifts_as_copies = true);
+
 // [T,H,W] radius maps for d.input registered by d.to_ref. Needs at least 2 frames.
 torch::Tensor estimate_radius_from_stack(const FitData& d, const StackCocOptions& opts = {},
                                          StackCocReport* report = nullptr);
