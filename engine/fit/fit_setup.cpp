@@ -302,16 +302,19 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     // Preparation runs on proxies of large frames (proxy.h): `small` holds them, and the
     // full-size frames go straight to the fit's input.
     const ProxySize px = proxy_size(project.width, project.height, opts.proxy_width);
-    std::vector<Image> frames, small;
+    std::vector<Image> frames(px.active() ? 0 : T), small(px.active() ? T : 0);
     d->input = d->clip_array({T, 3, H, W}, "input");
-    for (int t = 0; t < T; ++t) {
-        Image f = project.read_frame(t);
-        d->input[t].copy_(image_to_tensor(f));
-        if (px.active())
-            small.push_back(resize_image(f, px.width, px.height));
-        else
-            frames.push_back(std::move(f));
-    }
+    // Two frames at a time: decoding a cached frame and scaling it down take one core each.
+    at::parallel_for(0, T, 1, [&](int64_t t0, int64_t t1) {
+        for (int64_t t = t0; t < t1; ++t) {
+            Image f = project.read_frame(int(t));
+            d->input[t].copy_(image_to_tensor(f));
+            if (px.active())
+                small[t] = resize_image(f, px.width, px.height);
+            else
+                frames[t] = std::move(f);
+        }
+    });
     debug_memory("setup: frames read");
     read_noise(project, *d, log);
     if (px.active())

@@ -8,6 +8,7 @@
 
 #include "prepare/detail.h"
 #include "util/error.h"
+#include "util/threads.h"
 
 namespace refocus {
 
@@ -156,16 +157,21 @@ Image flow_consistency(const Image& fwd, const Image& bwd, const FlowOptions& op
 ClipFlow compute_clip_flow(const std::vector<Image>& frames, const FlowOptions& opts) {
     ClipFlow cf;
     if (frames.size() < 2) return cf;
-    auto dis = make_dis(opts.preset);
-    std::vector<cv::Mat> grey;
-    grey.reserve(frames.size());
-    for (const auto& f : frames) grey.push_back(srgb_grey8(f));
-    for (size_t t = 0; t + 1 < frames.size(); ++t) {
-        cf.fwd.push_back(flow_with(*dis, grey[t], grey[t + 1]));
-        cf.bwd.push_back(flow_with(*dis, grey[t + 1], grey[t]));
-        cf.fwd_valid.push_back(flow_consistency(cf.fwd.back(), cf.bwd.back(), opts));
-        cf.bwd_valid.push_back(flow_consistency(cf.bwd.back(), cf.fwd.back(), opts));
-    }
+    const int n = int(frames.size());
+    std::vector<cv::Mat> grey(n);
+    for_each_on_threads(n, 0, [&](int t, int) { grey[t] = srgb_grey8(frames[t]); });
+    cf.fwd.resize(n - 1), cf.bwd.resize(n - 1), cf.fwd_valid.resize(n - 1),
+        cf.bwd_valid.resize(n - 1);
+    // Pairs on each core, each with its own estimator: DIS's own threads leave cores idle in
+    // its serial parts (pyramids, the consistency check). A pair's flow does not depend on the
+    // thread that made it.
+    for_each_on_threads(n - 1, 0, [&](int t, int) {
+        auto est = make_dis(opts.preset);
+        cf.fwd[t] = flow_with(*est, grey[t], grey[t + 1]);
+        cf.bwd[t] = flow_with(*est, grey[t + 1], grey[t]);
+        cf.fwd_valid[t] = flow_consistency(cf.fwd[t], cf.bwd[t], opts);
+        cf.bwd_valid[t] = flow_consistency(cf.bwd[t], cf.fwd[t], opts);
+    });
     return cf;
 }
 

@@ -9,6 +9,7 @@
 #include "prepare/detail.h"
 #include "util/error.h"
 #include "util/fs.h"
+#include "util/threads.h"
 
 namespace refocus {
 
@@ -120,11 +121,15 @@ std::vector<Image> baseline_residuals(const std::vector<Image>& frames, const Ca
         std::min(out_w, std::max(o.min_flow_width, int(std::lround(out_w * o.flow_scale))));
     const int sh = std::max(1, int(std::lround(double(out_h) * sw / out_w)));
     const float to_out_px = float(out_w) / sw;
-    std::vector<cv::Mat> grey;
-    for (const Image& f : frames) grey.push_back(resized(srgb_grey8(f), sw, sh, cv::INTER_AREA));
-    auto dis = make_dis(o.flow_preset);
+    std::vector<cv::Mat> grey(n);
+    for_each_on_threads(n, 0, [&](int t, int) {
+        grey[t] = resized(srgb_grey8(frames[t]), sw, sh, cv::INTER_AREA);
+    });
     const cv::Mat all(sh, sw, CV_8UC1, cv::Scalar(255));
-    for (int t = 0; t < n; ++t) {
+    out.resize(n);
+    // Frames on each core, each with its own estimator (as compute_clip_flow).
+    for_each_on_threads(n, 0, [&](int t, int) {
+        auto dis = make_dis(o.flow_preset);
         // The largest residual over the baselines where some partner's flow is consistent
         // (a long baseline breaks down on a fast subject, a short one misses a slow one);
         // where none is, the largest inconsistent one.
@@ -171,8 +176,8 @@ std::vector<Image> baseline_residuals(const std::vector<Image>& frames, const Ca
             any_known |= known;
         }
         fallback.copyTo(score, ~any_known);
-        out.push_back(to_image(resized(score, out_w, out_h, cv::INTER_LINEAR)));
-    }
+        out[t] = to_image(resized(score, out_w, out_h, cv::INTER_LINEAR));
+    });
     return out;
 }
 

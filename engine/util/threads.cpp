@@ -8,8 +8,11 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstdlib>
+#include <exception>
+#include <mutex>
 #include <string>
 #include <thread>
+#include <vector>
 
 namespace refocus {
 
@@ -39,6 +42,32 @@ int init_threads() {
     omp_set_num_threads(n);
     cv::setNumThreads(n);
     return n;
+}
+
+void for_each_on_threads(int n, int threads, const std::function<void(int, int)>& fn) {
+    if (threads <= 0) threads = at::get_num_threads();
+    threads = std::max(1, std::min(threads, n));
+    std::exception_ptr failed;
+    std::mutex lock;
+    auto run = [&](int k) {
+        try {
+            for (int i = k; i < n; i += threads) {
+                {
+                    std::lock_guard<std::mutex> g(lock);
+                    if (failed) return;
+                }
+                fn(i, k);
+            }
+        } catch (...) {
+            std::lock_guard<std::mutex> g(lock);
+            if (!failed) failed = std::current_exception();
+        }
+    };
+    std::vector<std::thread> pool;
+    for (int k = 1; k < threads; ++k) pool.emplace_back(run, k);
+    run(0);
+    for (auto& t : pool) t.join();
+    if (failed) std::rethrow_exception(failed);
 }
 
 }  // namespace refocus

@@ -1,4 +1,5 @@
 #pragma once
+#include <functional>
 #include <string>
 
 namespace refocus {
@@ -8,4 +9,9 @@ int init_threads();
 // The thread count REFOCUS_THREADS asks for: a whole number in 1..4 × `cores`; anything else
 // (unset aside) sets `warning` and gives `cores`.
 int threads_from_env(const char* env, int cores, std::string* warning);
+// Runs fn(i, k) for every i in [0, n) on `threads` threads (k = 0 .. threads − 1; thread k takes
+// i ≡ k mod threads), for per-frame work that is serial inside (an image file's encoding, an
+// optical flow with its own estimator). The first exception is rethrown once all have stopped.
+// threads ≤ 0: LibTorch's thread count (init_threads).
+void for_each_on_threads(int n, int threads, const std::function<void(int i, int k)>& fn);
 }  // namespace refocus
