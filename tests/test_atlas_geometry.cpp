@@ -162,3 +162,63 @@ TEST_CASE("fuse_frames: each frame pulled in over its window equals the whole fu
     // Texels no window reaches take the fallback, not the weighted mean.
     CHECK((windowed.masked_select((seen < 0.5).expand({3, Ha, Wa})) == -1.0f).all().item<bool>());
 }
+
+TEST_CASE("fuse_frames: frames shifted by whole pixels, added as they are, equal the samplers'") {
+    // Three 24x20 frames shifted by whole pixels (two of them partly off a 30x26 atlas) and one
+    // by a fraction (the samplers either way), whole and over windows.
+    torch::manual_seed(5);
+    const int64_t T = 4, H = 20, W = 24, Ha = 26, Wa = 30;
+    auto src = torch::rand({T, 3, H, W});
+    auto weight = torch::rand({T, 1, H, W}) + 0.1;
+    const double shifts[T][2] = {{3, 2}, {-4, 1}, {8, 9}, {2.5, 1}};
+    std::vector<torch::Tensor> mats;
+    for (const auto& s : shifts) mats.push_back(translation(s[0], s[1]));
+    const auto to_atlas = torch::stack(mats).to(torch::kFloat32);
+    auto fuse = [&](bool copies, bool windows) {
+        return fuse_frames(
+            to_atlas, Ha, Wa, [&](int64_t t) { return src[t]; },
+            [&](int64_t t) { return weight[t]; }, {},
+            windows ? std::function<TexelBox(int64_t)>([&](int64_t t) {
+                return TexelBox{int64_t(t), 2, 20, 15};
+            })
+                    : std::function<TexelBox(int64_t)>(),
+            windows ? torch::full({3, Ha, Wa}, -1.0f) : torch::Tensor(), copies);
+    };
+    for (bool windows : {false, true}) {
+        const auto copied = fuse(true, windows), sampled = fuse(false, windows);
+        CHECK((copied - sampled).abs().max().item<float>() < 1e-5f);
+    }
+    // The copies are the frames' own pixels: one frame alone comes back as itself.
+    const auto one = fuse_frames(
+        to_atlas.narrow(0, 0, 1), Ha, Wa, [&](int64_t) { return src[0]; },
+        [&](int64_t) { return weight[0]; });
+    CHECK((one.narrow(1, 2, H).narrow(2, 3, W) - src[0]).abs().max().item<float>() < 1e-6f);
+}
+
+TEST_CASE("fuse_frames: each frame sampled over its footprint equals the whole atlas's samples") {
+    // Four 24x20 frames under homographies (one with perspective, one partly off the atlas, one
+    // wholly off it) into a 60x44 atlas.
+    torch::manual_seed(6);
+    const int64_t T = 4, H = 20, W = 24, Ha = 44, Wa = 60;
+    auto src = torch::rand({T, 3, H, W});
+    auto weight = torch::rand({T, 1, H, W}) + 0.1;
+    auto persp = translation(20.3, 9.7);
+    persp[2][0] = 0.002, persp[2][1] = -0.001, persp[0][1] = 0.05;
+    const auto to_atlas = torch::stack({translation(3.25, 2.5), persp, translation(-10.6, 30.2),
+                                        translation(100.0, 5.0)})
+                              .to(torch::kFloat32);
+    auto fuse = [&](bool shortcuts) {
+        return fuse_frames(
+            to_atlas, Ha, Wa, [&](int64_t t) { return src[t]; },
+            [&](int64_t t) { return weight[t]; }, {}, {}, {}, shortcuts);
+    };
+    const auto quick = fuse(true), reference = fuse(false);
+    CHECK((quick - reference).abs().max().item<float>() < 1e-6f);
+}
+
+TEST_CASE("sharpness_weight is (r + 1/2)^-4") {
+    const auto r = torch::rand({1000}) * 60.0;
+    const auto w = sharpness_weight(r), ref = (r.to(torch::kFloat64) + 0.5).pow(-4.0);
+    CHECK(((w.to(torch::kFloat64) - ref).abs() / ref).max().item<double>() < 1e-6);
+    CHECK(sharpness_weight(torch::zeros({1})).item<float>() == 16.0f);
+}

@@ -73,25 +73,27 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
     m_bg.warp = torch::zeros({T, 2, gh, gw});
 
     torch::NoGradGuard no_grad;
-    // Derived per-frame maps are made frame by frame into clip arrays (FitData::per_frame): a
-    // long clip's would otherwise be clip-sized temporaries. Restoring from a checkpoint (its
-    // atlases and alignment replace the set-up's) reads none of them unless it aligns, or makes
-    // the deblurring path or the flow's warps again: a long clip's are minutes of writing.
-    const bool weights =
-        !opts.restore_only || opts.align_rounds > 0 || opts.deblur_path || opts.flow_warp;
-    auto maybe = [&](const std::function<torch::Tensor(int64_t)>& fn) {
-        return weights ? d.per_frame(fn) : torch::Tensor();
+    // The frames' fusion weights and regions are made frame by frame as a fusion or an
+    // alignment reads them: as clip arrays they would be four full-size maps a frame written
+    // through work/ (26 s at 1920x1080x240), for reads that cost less than the writing.
+    const FrameFn sharpness = [&d](int64_t t) {
+        return sharpness_weight(d.radius[t]).unsqueeze(0);
     };
-    const auto sharpness =
-        maybe([&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); });
     m_two_layers = d.has_subject && d.mask.defined();
-    debug_memory("fast model: weights");
-    torch::Tensor bg_weight = sharpness;
+    const bool two = m_two_layers;
     // Where each layer is seen: the mask's complement, or everywhere with one layer.
-    const auto bg_region = maybe(
-        [&](int64_t t) { return m_two_layers ? 1.0 - d.mask[t] : torch::ones_like(sharpness[t]); });
+    const FrameFn bg_region = [&d, two](int64_t t) {
+        return two ? 1.0 - d.mask[t] : torch::ones({1, d.height, d.width});
+    };
+    const FrameFn bg_weight = [&d, two, sharpness](int64_t t) {
+        return two ? sharpness(t) * (1.0 - d.mask[t]).clamp_min(1e-3) : sharpness(t);
+    };
+    const FrameFn fg_weight = [&d, sharpness](int64_t t) {
+        return sharpness(t) * d.mask[t].clamp_min(1e-3);
+    };
+    const FrameFn mask = [&d](int64_t t) { return d.mask[t]; };
+    m_input_p = shrunk_once([&d](int64_t t) { return d.input[t]; });
     if (m_two_layers) {
-        bg_weight = maybe([&](int64_t t) { return sharpness[t] * bg_region[t].clamp_min(1e-3); });
         // Foreground mapping: translate so that each frame's subject centroid lands on one point.
         std::vector<double> vx, vy, sc;
         subject_track(d, vx, vy, &sc);
@@ -110,13 +112,12 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         m_fg.learn_warp = true;
         rescale(m_fg, opts.atlas_scale);
         m_fg.warp = torch::zeros({T, 2, gh, gw});
-        const auto fg_weight =
-            maybe([&](int64_t t) { return sharpness[t] * d.mask[t].clamp_min(1e-3); });
         // The subject's track may be off by a few px where the focus crosses it (its flow sees
         // the wall through its blurred edge); the reblurred sharpest views pull it back, which
         // takes corrections up to 10 px (docs/method.md, Model). A centroid track keeps 4 px.
         clock.next("set-up: align the subject", "aligning the subject's frames");
-        refine_alignment(m_fg, fg_weight, d.mask, d.legacy_subject_track ? 4.0 : 10.0);
+        const FrameFn fg_weight_p = shrunk_once(fg_weight);
+        refine_alignment(m_fg, fg_weight, fg_weight_p, mask, d.legacy_subject_track ? 4.0 : 10.0);
         if (std::any_of(sc.begin(), sc.end(), [](double v) { return v != 1.0; })) {
             char line[200];
             std::snprintf(
@@ -129,9 +130,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         }
         clock.next("set-up: fuse the subject's atlas", "fusing the subject's atlas");
         init_levels(m_fg, m_opts.restore_only ? torch::zeros({3, m_fg.height, m_fg.width})
-                                              : fuse_regions(
-                                                    m_fg, [&](int64_t t) { return fg_weight[t]; },
-                                                    [&](int64_t t) { return d.mask[t]; }));
+                                              : fuse_regions(m_fg, fg_weight, mask, fg_weight_p));
         clock.next("set-up: the matte", "fusing the matte");
         // Alpha (paper eq. 1): a matte shared by the frames, in the foreground atlas (half its
         // resolution), plus a per-frame residual (quarter resolution) for what moves on the
@@ -156,7 +155,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                 : fuse_frames(
                       torch::matmul(to_half, m_fg.to_atlas.to(torch::kFloat64)).to(torch::kFloat32),
                       m_alpha_h, m_alpha_w, [&](int64_t t) { return d.mask[t]; },
-                      [&](int64_t t) { return (subject_r[t] + 0.5).pow(-4.0); });
+                      [&](int64_t t) { return sharpness_weight(subject_r[t]); });
         m_alpha_atlas = torch::logit(fused_mask.unsqueeze(0).clamp(0.01, 0.99));
         m_alpha_logit = torch::zeros({T, 1, (H + 3) / 4, (W + 3) / 4});
     }
@@ -185,7 +184,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
             std::vector<int64_t> sample;
             const int64_t stride = (T + kSample - 1) / kSample;
             for (int64_t t = stride / 2; t < T; t += stride) sample.push_back(t);
-            refine_alignment(m_bg, bg_weight, bg_region, 2.0, true, &sample, 1);
+            refine_alignment(m_bg, bg_weight, {}, bg_region, 2.0, true, &sample, 1);
             locked = still();
             m_bg.to_atlas = before;
             if (locked)
@@ -194,17 +193,16 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
                                 " sampled moves by 0.3 px): the background is not aligned");
         }
         if (!locked) {
-            refine_alignment(m_bg, bg_weight, bg_region, d.static_camera ? 2.0 : 4.0,
-                             d.static_camera);
+            refine_alignment(m_bg, bg_weight, shrunk_once(bg_weight), bg_region,
+                             d.static_camera ? 2.0 : 4.0, d.static_camera);
             if (d.static_camera && still()) m_bg.to_atlas = before;
         }
     }
     debug_memory("fast model: aligned");
     if (m_bg.learn_warp && m_opts.flow_warp && d.flow_fwd.defined() && T > 1) {
         const int64_t c = m_opts.flow_warp_cell_px;
-        const auto fw = warps_from_flow(
-            m_bg.to_atlas, m_bg.scale, d.flow_fwd, d.flow_valid,
-            [&](int64_t t) { return bg_region[t]; }, H / c + 2, W / c + 2);
+        const auto fw = warps_from_flow(m_bg.to_atlas, m_bg.scale, d.flow_fwd, d.flow_valid,
+                                        bg_region, H / c + 2, W / c + 2);
         m_bg.warp = fw.warp;
         char line[240];
         std::snprintf(line, sizeof line,
@@ -221,7 +219,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         std::function<torch::Tensor(int64_t)> region;
         if (!m_opts.restore_only)
             region = [&](int64_t t) {
-                if (!m_two_layers) return bg_region[t];
+                if (!m_two_layers) return bg_region(t);
                 return 1.0 -
                        F::max_pool2d(d.mask[t].unsqueeze(0),
                                      F::MaxPool2dFuncOptions(2 * g + 1).stride(1).padding(g))[0];
@@ -230,21 +228,24 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         if (!line.empty()) notes.push_back(line);
     }
     clock.next("set-up: fuse the background atlas", "fusing the background atlas");
-    init_levels(m_bg, m_opts.restore_only ? torch::zeros({3, m_bg.height, m_bg.width})
-                                          : fuse(m_bg, bg_weight, {}, true));
+    init_levels(m_bg, m_opts.restore_only
+                          ? torch::zeros({3, m_bg.height, m_bg.width})
+                          : fuse(
+                                m_bg, bg_weight, [&](int64_t t) { return d.input[t]; }, true));
     debug_memory("fast model: background fused");
     clock.next("set-up: deblurring path", m_opts.deblur_path ? "the deblurring path" : "");
     if (m_opts.deblur_path) {
-        auto line =
-            make_deblur_path(m_bg, d.layer_radius(false), bg_weight, bg_region, "background");
+        auto line = make_deblur_path(m_bg, d.layer_radius(false), d.per_frame(bg_weight),
+                                     d.per_frame(bg_region), "background");
         if (!line.empty()) notes.push_back(line);
         if (m_two_layers) {
-            line = make_deblur_path(m_fg, d.layer_radius(true), sharpness * d.mask.clamp_min(1e-3),
-                                    d.mask, "foreground");
+            line = make_deblur_path(m_fg, d.layer_radius(true), d.per_frame(fg_weight), d.mask,
+                                    "foreground");
             if (!line.empty()) notes.push_back(line);
         }
     }
     m_tv_stale = true;  // made by the first priors() (update_tv_weights)
+    m_input_p = {};
     clock.end();
     set_activity("");
 }

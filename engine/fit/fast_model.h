@@ -225,7 +225,14 @@ class FastModel : public FitModel {
     // alignment's proxy are pulled in over their region's box only, and the texels no box
     // reaches take the fusion on the proxy (fuse_frames' window and fallback). The subject of a
     // 1080p clip is a few percent of each frame; its atlas spans its whole track.
-    torch::Tensor fuse_regions(const Atlas& a, const FrameFn& weight, const FrameFn& region) const;
+    // `weight_p` (optional): the weights on the proxy, as shrunk_once gives them.
+    torch::Tensor fuse_regions(const Atlas& a, const FrameFn& weight, const FrameFn& region,
+                               const FrameFn& weight_p = {}) const;
+    // `full` shrunk to the alignment's proxy, each frame once, when first read (the subject's
+    // alignment rounds and its atlas's fallback read the same frames and weights); empty on
+    // frames no wider than the proxy.
+    FrameFn shrunk_once(FrameFn full) const;
+    FrameFn m_input_p;         // the input frames on the proxy during the set-up (shrunk_once)
     void update_tv_weights();  // each atlas's tv_weight, from the data and its geometry
     // The TV weights wait for the first priors(): a fused pass over every frame that an export
     // or a reopened project (renders only) never needs, and a resumed fit makes once.
@@ -238,12 +245,13 @@ class FastModel : public FitModel {
     // minification (the subject seen smaller than in the atlas): [B,3,h,w].
     torch::Tensor minified(const torch::Tensor& fg, const std::vector<int64_t>& frames) const;
     // Refines each frame's mapping by ECC image alignment (Evangelidis & Psarakis 2008) of the
-    // reblurred fused atlas against the input frame, inside `region` ([T,1,H,W] > 0.5), then
+    // reblurred fused atlas against the input frame, inside `region` (frame t's [1,H,W] > 0.5;
+    // `weight` frame t's fusion weight, `weight_p` optionally the same on the proxy), then
     // re-fuses. Chained feature homographies drift by a pixel or more over a clip, and a sharp
     // atlas shifted by a pixel scores worse than the blurred input. `only` (if given): the frames
     // aligned, the others keep their mapping; `rounds` < 0: fast.align_rounds.
-    void refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                          double max_shift, bool static_camera = false,
+    void refine_alignment(Atlas& a, const FrameFn& weight, const FrameFn& weight_p,
+                          const FrameFn& region, double max_shift, bool static_camera = false,
                           const std::vector<int64_t>* only = nullptr, int rounds = -1);
     // Checkpoints hold each atlas's geometry (its box and per-frame mapping) beside its texels:
     // a reopened project keeps what its fit trained, even where this build would place the

@@ -57,22 +57,25 @@ torch::Tensor proxy_mapping(const torch::Tensor& to_atlas, int64_t k) {
 // Frames fused on a proxy k times smaller than frame and atlas (proxy_mapping), each frame its
 // k × k block means, its edges replicated ⌈pad/k⌉ px outward at weight 1e-3 as FastModel::fuse
 // does. [C, ⌈Ha/k⌉, ⌈Wa/k⌉].
+// With `shrunk`, src and weight give the proxy's frames already.
 torch::Tensor fuse_on_proxy(const torch::Tensor& to_atlas, int64_t Ha, int64_t Wa, int64_t k,
-                            int64_t pad, const FrameFn& src, const FrameFn& weight) {
+                            int64_t pad, const FrameFn& src, const FrameFn& weight,
+                            bool shrunk = false) {
     const auto to_proxy = proxy_mapping(to_atlas, k);
     const int64_t ah = (Ha + k - 1) / k, aw = (Wa + k - 1) / k, p = (pad + k - 1) / k;
+    auto small = [&](const FrameFn& f, int64_t t) { return shrunk ? f(t) : shrink_by(f(t), k); };
     if (p == 0)
         return fuse_frames(
-            to_proxy.to(torch::kFloat32), ah, aw, [&](int64_t t) { return shrink_by(src(t), k); },
-            [&](int64_t t) { return shrink_by(weight(t), k); });
+            to_proxy.to(torch::kFloat32), ah, aw, [&](int64_t t) { return small(src, t); },
+            [&](int64_t t) { return small(weight, t); });
     auto edges = [&](const torch::Tensor& x) {
         return F::pad(x.unsqueeze(0), F::PadFuncOptions({p, p, p, p}).mode(torch::kReplicate))[0];
     };
     return fuse_frames(
         torch::matmul(to_proxy, translation(-p, -p).to(torch::kFloat64)).to(torch::kFloat32), ah,
-        aw, [&](int64_t t) { return edges(shrink_by(src(t), k)); },
+        aw, [&](int64_t t) { return edges(small(src, t)); },
         [&](int64_t t) {
-            const auto w = shrink_by(weight(t), k);
+            const auto w = small(weight, t);
             auto inside = F::pad(torch::ones({1, 1, w.size(1), w.size(2)}),
                                  F::PadFuncOptions({p, p, p, p}).value(1e-3))[0];
             return edges(w) * inside;
@@ -137,7 +140,7 @@ void FastModel::update_tv_weights() {
     // made as the fusion reads them: at 1080p x 240 a clip array of one of them is 2 GB.
     torch::NoGradGuard no_grad;
     const FitData& d = m_data;
-    auto sharpness = [&](int64_t t) { return (d.radius[t] + 0.5).pow(-4.0).unsqueeze(0); };
+    auto sharpness = [&](int64_t t) { return sharpness_weight(d.radius[t]).unsqueeze(0); };
     m_bg.tv_weight = m_fg.tv_weight = torch::Tensor();
     if (int(m_opts.tv_radius_layers) & 1) {
         const auto r = d.layer_radius(false);
@@ -188,8 +191,31 @@ torch::Tensor FastModel::tv_weight_map(const Atlas& a, const FrameFn& radius, co
     return f.unsqueeze(0);
 }
 
-torch::Tensor FastModel::fuse_regions(const Atlas& a, const FrameFn& weight,
-                                      const FrameFn& region) const {
+FastModel::FrameFn FastModel::shrunk_once(FrameFn full) const {
+    const int64_t k = proxy_factor(m_data.width, m_opts.align_width);
+    if (k == 1) return {};
+    // A clip array (mapped through work/ where the clip's frames are), made at the first read.
+    struct Memo {
+        torch::Tensor frames;
+        std::vector<char> made;
+    };
+    auto memo = std::make_shared<Memo>();
+    memo->made.assign(m_data.frames, 0);
+    const FitData* d = &m_data;
+    return [full = std::move(full), k, memo, d](int64_t t) {
+        if (!memo->made[t]) {
+            const auto x = shrink_by(full(t), k);
+            if (!memo->frames.defined())
+                memo->frames = d->clip_array({int64_t(d->frames), x.size(0), x.size(1), x.size(2)});
+            memo->frames[t].copy_(x);
+            memo->made[t] = 1;
+        }
+        return memo->frames[t];
+    };
+}
+
+torch::Tensor FastModel::fuse_regions(const Atlas& a, const FrameFn& weight, const FrameFn& region,
+                                      const FrameFn& weight_p) const {
     const int64_t k = proxy_factor(m_data.width, m_opts.align_width);
     auto src = [&](int64_t t) { return m_data.input[t]; };
     if (k == 1) return fuse(a, weight, src);
@@ -210,15 +236,17 @@ torch::Tensor FastModel::fuse_regions(const Atlas& a, const FrameFn& weight,
     }
     // Regions that fill most of the atlas anyway: the whole frames, as everywhere else.
     if (texels > T * a.height * a.width / 2) return fuse(a, weight, src);
-    const auto fallback =
-        proxy_to_atlas(fuse_on_proxy(a.to_atlas, a.height, a.width, k, m_opts.pad, src, weight),
-                       a.height, a.width);
+    const auto fallback = proxy_to_atlas(
+        m_input_p && weight_p
+            ? fuse_on_proxy(a.to_atlas, a.height, a.width, k, m_opts.pad, m_input_p, weight_p, true)
+            : fuse_on_proxy(a.to_atlas, a.height, a.width, k, m_opts.pad, src, weight),
+        a.height, a.width);
     return fuse(
         a, weight, src, false, [&](int64_t t) { return boxes[t]; }, fallback);
 }
 
-void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const torch::Tensor& region,
-                                 double max_shift, bool static_camera,
+void FastModel::refine_alignment(Atlas& a, const FrameFn& weight, const FrameFn& weight_p,
+                                 const FrameFn& region, double max_shift, bool static_camera,
                                  const std::vector<int64_t>* only, int rounds) {
     const int64_t T = m_data.frames, H = m_data.height, W = m_data.width;
     // ECC runs on a proxy at most align_width px wide: its window and iterations are tuned in
@@ -234,6 +262,9 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
         pixels = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({h * w})}, 1);
     }
     auto shrink = [&](const torch::Tensor& x) { return shrink_by(x, k); };  // [C,h,w]
+    const FrameFn input_p =
+        m_input_p ? m_input_p : [&](int64_t t) { return shrink(m_data.input[t]); };
+    const FrameFn wp = weight_p ? weight_p : [&](int64_t t) { return shrink(weight(t)); };
     // On a proxy the atlas is fused from the proxy frames too (fuse_on_proxy): the render reads
     // nothing finer, and the fusion costs k² less; 1280×720×60: the background's corners land
     // within 0.03 px (median) of the full-size fusion's. The subject's atlas spans its track,
@@ -257,13 +288,10 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
         {
             ScopedTiming timing("align: fuse");
             if (!proxy_atlas) {
-                fused = fuse(a, weight).unsqueeze(0);
+                fused = fuse(a, weight, [&](int64_t t) { return m_data.input[t]; }).unsqueeze(0);
             } else {
                 to_proxy = proxy_mapping(a.to_atlas, k).to(torch::kFloat32);
-                fused = fuse_on_proxy(
-                            a.to_atlas, a.height, a.width, k, 0,
-                            [&](int64_t t) { return m_data.input[t]; },
-                            [&](int64_t t) { return weight[t]; })
+                fused = fuse_on_proxy(a.to_atlas, a.height, a.width, k, 0, input_p, wp, true)
                             .unsqueeze(0);
             }
         }
@@ -274,7 +302,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
                 mats.push_back(m);
                 continue;
             }
-            auto rmask = (shrink(region[t])[0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
+            auto rmask = (shrink(region(t))[0] > 0.5).to(torch::kUInt8).mul(255).contiguous();
             const cv::Mat full_mask(int(h), int(w), CV_8U, rmask.data_ptr<uint8_t>());
             if (cv::countNonZero(full_mask) < 64) {
                 mats.push_back(m);
@@ -316,7 +344,7 @@ void FastModel::refine_alignment(Atlas& a, const torch::Tensor& weight, const to
                 auto render = sample_bicubic(fused, grid)[0];
                 auto blurred =
                     lens_blur(render.contiguous(), crop(radius).contiguous(), m_data.blur);
-                tmpl = grey(crop(shrink(m_data.input[t]))), moving = grey(blurred);
+                tmpl = grey(crop(input_p(t))), moving = grey(blurred);
             }
             ScopedTiming timing("align: ECC");
             mats.push_back(torch::matmul(m, ecc_translation(tmpl, moving, mask, k, W, H, max_shift,

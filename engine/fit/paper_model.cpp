@@ -121,7 +121,7 @@ PaperModel::PaperModel(const FitData& d, const PaperModelOptions& options, uint6
     torch::NoGradGuard no_grad;
     auto ys = torch::arange(H, torch::kFloat32), xs = torch::arange(W, torch::kFloat32);
     auto grid = torch::meshgrid({ys, xs}, "ij");
-    const auto sharpness = (d.radius + 0.5).pow(-4.0).unsqueeze(1);  // [T,1,H,W]
+    const auto sharpness = sharpness_weight(d.radius).unsqueeze(1);  // [T,1,H,W]
     torch::Tensor bg_weight = sharpness, fg_weight;
     if (m_two_layers) {
         bg_weight = sharpness * (1.0 - d.mask).clamp_min(1e-3);

@@ -228,10 +228,48 @@ AtlasBox subject_box(const torch::Tensor& mask, const std::vector<double>& vx,
     return b;
 }
 
+torch::Tensor sharpness_weight(const torch::Tensor& radius) {
+    auto x = radius + 0.5;
+    x.mul_(x);
+    x.mul_(x);
+    return x.reciprocal_();
+}
+
 torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& grid) {
     return torch::grid_sampler(input, grid, /*interpolation_mode=*/2, /*padding_mode=*/1,
                                /*align_corners=*/false);
 }
+
+namespace {
+
+// Whether the frame → atlas homography m [3,3] is a translation by whole pixels (dx, dy).
+bool whole_pixel_shift(const torch::Tensor& m, int64_t& dx, int64_t& dy) {
+    const auto d = m.to(torch::kFloat64).contiguous();
+    const double* a = d.data_ptr<double>();
+    const double e = 1e-6;
+    if (std::abs(a[0] - 1) > e || std::abs(a[1]) > e || std::abs(a[3]) > e ||
+        std::abs(a[4] - 1) > e || std::abs(a[6]) > e || std::abs(a[7]) > e ||
+        std::abs(a[8] - 1) > e)
+        return false;
+    const double rx = std::round(a[2]), ry = std::round(a[5]);
+    if (std::abs(a[2] - rx) > 1e-4 || std::abs(a[5] - ry) > 1e-4) return false;
+    dx = int64_t(rx), dy = int64_t(ry);
+    return true;
+}
+
+// The texels a W × H frame mapped by m [3,3] reaches, grown by 2 (bicubic taps): its corners'
+// box; the whole atlas where a corner maps through infinity.
+TexelBox footprint(const torch::Tensor& m, int64_t W, int64_t H, int64_t width, int64_t height) {
+    auto c = torch::tensor(
+                 {-0.5, W - 0.5, -0.5, W - 0.5, -0.5, -0.5, H - 0.5, H - 0.5, 1.0, 1.0, 1.0, 1.0},
+                 torch::kFloat64)
+                 .view({3, 4});
+    if (!(torch::matmul(m.to(torch::kFloat64), c)[2] > 1e-9).all().item<bool>())
+        return TexelBox{0, 0, width, height};
+    return mapped_box(m.unsqueeze(0), 0, -0.5, -0.5, W - 0.5, H - 0.5, 2.0, height, width);
+}
+
+}  // namespace
 
 torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t width,
                           const torch::Tensor& src, const torch::Tensor& weight) {
@@ -265,7 +303,7 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
                           const std::function<torch::Tensor(int64_t)>& weight,
                           const std::function<torch::Tensor(int64_t)>& offset,
                           const std::function<TexelBox(int64_t)>& window,
-                          const torch::Tensor& fallback) {
+                          const torch::Tensor& fallback, bool shortcuts) {
     namespace F = torch::nn::functional;
     const int64_t T = to_atlas.size(0);
     auto ys = torch::arange(height, torch::kFloat32), xs = torch::arange(width, torch::kFloat32);
@@ -290,8 +328,31 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
             ones = torch::ones({1, 1, H, W});
             scale = torch::tensor({2.0f / W, 2.0f / H});
         }
+        // A frame that lands on the atlas by a whole-pixel shift (a static camera's background at
+        // scale 1) is added as it is: the samplers would read its pixel centres exactly.
+        int64_t dx = 0, dy = 0;
+        if (shortcuts && !offset && whole_pixel_shift(to_atlas[t], dx, dy)) {
+            const int64_t H = s.size(1), W = s.size(2);
+            const int64_t x0 = std::max(box.x0, dx), y0 = std::max(box.y0, dy),
+                          x1 = std::min(box.x0 + box.w, dx + W),
+                          y1 = std::min(box.y0 + box.h, dy + H);
+            if (x1 <= x0 || y1 <= y0) continue;
+            auto cut = [&](const torch::Tensor& x) {
+                return x.narrow(1, y0 - dy, y1 - y0).narrow(2, x0 - dx, x1 - x0);
+            };
+            const auto w = cut(weight(t));
+            acc.narrow(1, y0, y1 - y0).narrow(2, x0, x1 - x0) += cut(s) * w;
+            wsum.narrow(1, y0, y1 - y0).narrow(2, x0, x1 - x0) += w;
+            continue;
+        }
+        // Without a window, the frame's footprint (its corners' box, grown by the bicubic
+        // taps): texels past it read nothing of the frame, and a subject's atlas spans its whole
+        // track (1920x1080x240 walkers: 2.4 frames).
+        if (shortcuts && !window && !offset &&
+            !(box = footprint(to_atlas[t], s.size(2), s.size(1), width, height)).w)
+            continue;
         torch::Tensor at = pts;
-        if (window) {
+        if (box.w != width || box.h != height) {
             at = pts.view({3, height, width})
                      .narrow(1, box.y0, box.h)
                      .narrow(2, box.x0, box.w)

@@ -57,6 +57,11 @@ std::string clean_subject_masks(FitData& d, double min_persistence = 0.25);
 // lack kBicubic; the ATen op takes the mode as an integer: 0 bilinear, 1 nearest, 2 bicubic.)
 torch::Tensor sample_bicubic(const torch::Tensor& input, const torch::Tensor& grid);
 
+// The fusions' weight (r + ½)^−4 of a radius map: the frames that saw a point sharpest dominate
+// it. Taken as the reciprocal of a square squared: LibTorch takes a general power element by
+// element (13% of a 1920×1080×240 set-up).
+torch::Tensor sharpness_weight(const torch::Tensor& radius);
+
 // The starting atlas of both presets: every frame of src [T,C,H,W] pulled into an atlas of
 // height × width through the inverse of to_atlas ([T,3,3], frame pixel → atlas pixel) and
 // accumulated with weight [T,1,H,W] (the presets pass (r + ½)^−4, so that each atlas pixel comes
@@ -75,7 +80,7 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
                           const std::function<torch::Tensor(int64_t)>& weight,
                           const std::function<torch::Tensor(int64_t)>& offset = {},
                           const std::function<TexelBox(int64_t)>& window = {},
-                          const torch::Tensor& fallback = {});
+                          const torch::Tensor& fallback = {}, bool shortcuts = true);
 // With `window`, frame t is pulled into its box of the atlas only (a subject's region of a large
 // frame: the rest of the atlas would read its weight's floor alone), and atlas pixels no frame
 // reached take `fallback` ([C,height,width]; undefined: the weighted mean).
@@ -83,6 +88,10 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
 // to_atlas[t] (a homography: its corners' box), grown by `grow` texels and cut to the atlas.
 TexelBox mapped_box(const torch::Tensor& to_atlas, int64_t t, double x0, double y0, double x1,
                     double y1, double grow, int64_t height, int64_t width);
+// A frame mapped by a translation of whole pixels (a static camera's background at scale 1) is
+// added as it is, without the samplers, which would read its pixel centres exactly; without a
+// window, each frame is sampled over its footprint's box only (`shortcuts`; false: the samplers
+// over the whole atlas for every frame, the reference).
 // `offset(t)` ([2,H,W] atlas px, optional) is added to frame t's mapping at each frame pixel (a
 // residual warp): atlas pixels are pulled back through it by fixed-point iteration
 // p ← h⁻¹(a − offset(p)), exact for a warp that varies slowly against its own size.
