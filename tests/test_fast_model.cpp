@@ -482,3 +482,29 @@ TEST_CASE("TV weights fused on a proxy follow those fused at full size") {
     CHECK(proxy != full);
     CHECK(std::fabs(proxy - full) < 0.05 * full);
 }
+
+TEST_CASE("renders outside training keep the composed atlas until an edit changes it") {
+    // An export or playback composes each atlas once; an imported or painted atlas (set_atlas,
+    // in place) must reach the next render.
+    const int64_t T = 3, H = 24, W = 32;
+    torch::manual_seed(8);
+    auto d = std::make_shared<FitData>();
+    d->frames = T, d->height = H, d->width = W;
+    d->blur.kernel = BlurKernel::Pillbox;
+    d->input = torch::rand({T, 3, H, W});
+    d->radius = torch::full({T, H, W}, 0.1f);
+    d->to_ref = torch::eye(3, torch::kFloat64).expand({T, 3, 3}).clone();
+    d->static_camera = true;
+    FastModelOptions o;
+    o.align_rounds = 0;
+    FastModel m(*d, o);
+    torch::NoGradGuard g;
+    const auto first = m.render({0}).sharp.clone(), again = m.render({1, 0}).sharp;
+    CHECK(torch::equal(first, again.narrow(0, 1, 1)));
+    const auto atlas = m.atlas_bg();
+    m.set_atlas_bg(torch::full_like(atlas, 0.25f));
+    const auto edited = m.render({0}).sharp;
+    CHECK((edited - 0.25f).abs().max().item<float>() < 1e-4f);
+    m.set_atlas_bg(atlas);
+    CHECK((m.render({0}).sharp - first).abs().max().item<float>() < 1e-5f);
+}

@@ -308,6 +308,23 @@ torch::Tensor FastModel::compose(const Atlas& a) const {
     return sum;
 }
 
+torch::Tensor FastModel::compose_still(const Atlas& a, StillAtlas& memo) const {
+    std::vector<torch::Tensor> parts(a.levels.begin(), a.levels.end());
+    parts.push_back(a.deblur);
+    parts.push_back(a.deblur_kernel);
+    std::vector<int64_t> versions;
+    for (const auto& t : parts) versions.push_back(t.defined() ? int64_t(t._version()) : -1);
+    bool same =
+        memo.composed.defined() && parts.size() == memo.parts.size() && versions == memo.versions;
+    for (size_t i = 0; same && i < parts.size(); ++i) same = parts[i].is_same(memo.parts[i]);
+    if (!same) {
+        memo.composed = compose(a);
+        memo.parts = std::move(parts);
+        memo.versions = std::move(versions);
+    }
+    return memo.composed;
+}
+
 torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
                               const torch::Tensor& what, bool with_warp) const {
     const torch::Tensor& src = what.defined() ? what : m_data.input;
@@ -429,7 +446,7 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
         out.bg = sample_windows(m_bg, px_bg, std::move(wins), training ? &m_windows_bg : nullptr);
     } else {
         clock.next("render: compose the atlases");
-        auto bg = compose(m_bg);
+        auto bg = training ? compose(m_bg) : compose_still(m_bg, m_still_bg);
         m_composed_bg = training ? bg : torch::Tensor();
         clock.next("render: sample the atlases");
         out.bg = sample_bicubic(bg.expand({B, 3, m_bg.height, m_bg.width}), out.uv_bg);
@@ -446,7 +463,7 @@ Layers FastModel::render_region(const std::vector<int64_t>& frames, const std::v
         out.fg = sample_windows(m_fg, px_fg, std::move(wins), training ? &m_windows_fg : nullptr);
     } else {
         clock.next("render: compose the atlases");
-        auto fg = compose(m_fg);
+        auto fg = training ? compose(m_fg) : compose_still(m_fg, m_still_fg);
         m_composed_fg = training ? fg : torch::Tensor();
         clock.next("render: prefilter the subject");
         auto small = minified(fg, frames);

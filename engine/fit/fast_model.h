@@ -269,6 +269,16 @@ class FastModel : public FitModel {
     torch::Tensor m_alpha_atlas;  // [1,1,h,w] shared matte logit, foreground atlas at half size
     int64_t m_alpha_h = 0, m_alpha_w = 0;
     torch::Tensor m_composed_bg, m_composed_fg;  // of the last training render (see render_padded)
+    // Outside training the atlases hold still from frame to frame (an export, playback): each is
+    // composed once and kept while its tensors stay the same ones at the same versions (an edit,
+    // an import or a loaded state changes them).
+    struct StillAtlas {
+        std::vector<torch::Tensor> parts;  // held, so that no new tensor takes their place
+        std::vector<int64_t> versions;
+        torch::Tensor composed;
+    };
+    mutable StillAtlas m_still_bg, m_still_fg;
+    torch::Tensor compose_still(const Atlas& a, StillAtlas& memo) const;
     std::vector<AtlasWindow> m_windows_bg, m_windows_fg;  // of the last training render_window
 };
 
