@@ -82,6 +82,28 @@ inline cv::Mat disk_kernel(double r) {
     return k / cv::sum(k)[0];
 }
 
+// A textured disc moving over a panned texture; returns frames and true disc masks.
+inline void disc_clip(int w, int h, int n, std::vector<Image>& frames,
+                      std::vector<cv::Mat>& truth) {
+    const cv::Mat bg = texture(260, 180, 31), fg = texture(40, 40, 32, 0.9) * 0.8 + 0.15;
+    const double rad = 12;
+    for (int t = 0; t < n; ++t) {
+        cv::Mat f = warp(bg, translate(50 + 1.5 * t, 40 + 0.5 * t), w, h);
+        cv::Mat m(h, w, CV_8UC1, cv::Scalar(0));
+        const double cx = 30 + 4.0 * t, cy = 30 + 1.5 * t;  // moves (4, 1.5) px per frame
+        for (int y = 0; y < h; ++y)
+            for (int x = 0; x < w; ++x)
+                if (std::hypot(x - cx, y - cy) <= rad) {
+                    const int u = std::clamp(int(x - cx + 20), 0, 39),
+                              v = std::clamp(int(y - cy + 20), 0, 39);
+                    f.at<cv::Vec3f>(y, x) = fg.at<cv::Vec3f>(v, u);
+                    m.at<unsigned char>(y, x) = 1;
+                }
+        frames.push_back(from_mat(f));
+        truth.push_back(m);
+    }
+}
+
 inline double median(std::vector<float> v) {
     std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
     return v[v.size() / 2];

@@ -4,8 +4,6 @@
 // bad user masks / damaged prep folders.
 #include <doctest/doctest.h>
 
-#include <ATen/Parallel.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -20,7 +18,6 @@
 #include "prep_fixtures.h"
 #include "test_util.h"
 #include "util/error.h"
-#include "util/threads.h"
 
 using namespace refocus;
 
@@ -216,29 +213,6 @@ TEST_CASE("decisions: a static clip is static, has no subject; a pan is not stat
     CHECK_FALSE(p.decisions.static_camera);
     CHECK_FALSE(logged(p, "static camera"));
 }
-
-namespace {
-// A textured disc moving over a panned texture; returns frames and true disc masks.
-void disc_clip(int w, int h, int n, std::vector<Image>& frames, std::vector<cv::Mat>& truth) {
-    const cv::Mat bg = texture(260, 180, 31), fg = texture(40, 40, 32, 0.9) * 0.8 + 0.15;
-    const double rad = 12;
-    for (int t = 0; t < n; ++t) {
-        cv::Mat f = warp(bg, translate(50 + 1.5 * t, 40 + 0.5 * t), w, h);
-        cv::Mat m(h, w, CV_8UC1, cv::Scalar(0));
-        const double cx = 30 + 4.0 * t, cy = 30 + 1.5 * t;  // moves (4, 1.5) px per frame
-        for (int y = 0; y < h; ++y)
-            for (int x = 0; x < w; ++x)
-                if (std::hypot(x - cx, y - cy) <= rad) {
-                    const int u = std::clamp(int(x - cx + 20), 0, 39),
-                              v = std::clamp(int(y - cy + 20), 0, 39);
-                    f.at<cv::Vec3f>(y, x) = fg.at<cv::Vec3f>(v, u);
-                    m.at<unsigned char>(y, x) = 1;
-                }
-        frames.push_back(from_mat(f));
-        truth.push_back(m);
-    }
-}
-}  // namespace
 
 TEST_CASE("camera motion: a large subject walking toward a static camera leaves it static") {
     // A textured subject covering much of the frame grows and slides over a locked-off wall.
@@ -679,46 +653,4 @@ TEST_CASE("proxy: sizes, and homographies and flow carried from a proxy to the f
             << corner << " px, median flow error " << median(err) << " px at full size");
     CHECK(corner < 2.0);
     CHECK(median(err) < 0.5);
-}
-
-TEST_CASE("threads: every index once, on its thread; the first error comes back") {
-    std::vector<int> seen(23, 0), by(23, -1);
-    for_each_on_threads(23, 3, [&](int i, int k) { seen[i] += 1, by[i] = k; });
-    for (int i = 0; i < 23; ++i) {
-        CHECK(seen[i] == 1);
-        CHECK(by[i] == i % 3);
-    }
-    CHECK_THROWS_WITH_AS(for_each_on_threads(10, 2,
-                                             [](int i, int) {
-                                                 if (i == 5) throw Error("frame 5 is damaged");
-                                             }),
-                         "frame 5 is damaged", Error);
-}
-
-TEST_CASE("flow and masks: the same on one thread as on two") {
-    // Pairs and frames run on the cores with their own estimators: a frame's results must not
-    // depend on the thread that made them.
-    const int w = 128, h = 72, n = 6;
-    std::vector<Image> frames;
-    std::vector<cv::Mat> truth;
-    disc_clip(w, h, n, frames, truth);
-    const int threads = at::get_num_threads();
-    auto run = [&](int k, ClipFlow& flow, std::vector<Image>& masks) {
-        at::set_num_threads(k);
-        flow = compute_clip_flow(frames);
-        PrepareLog log;
-        const CameraMotion cm = estimate_camera_motion(frames, &flow, MotionOptions{}, log);
-        masks = automatic_masks(frames, &flow, cm);
-    };
-    ClipFlow f1, f2;
-    std::vector<Image> m1, m2;
-    run(1, f1, m1);
-    run(2, f2, m2);
-    at::set_num_threads(threads);
-    REQUIRE(f1.fwd.size() == size_t(n - 1));
-    for (int t = 0; t + 1 < n; ++t) {
-        CHECK(f1.fwd[t].pixels == f2.fwd[t].pixels);
-        CHECK(f1.bwd_valid[t].pixels == f2.bwd_valid[t].pixels);
-    }
-    for (int t = 0; t < n; ++t) CHECK(m1[t].pixels == m2[t].pixels);
 }

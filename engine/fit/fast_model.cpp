@@ -308,23 +308,6 @@ torch::Tensor FastModel::compose(const Atlas& a) const {
     return sum;
 }
 
-torch::Tensor FastModel::compose_still(const Atlas& a, StillAtlas& memo) const {
-    std::vector<torch::Tensor> parts(a.levels.begin(), a.levels.end());
-    parts.push_back(a.deblur);
-    parts.push_back(a.deblur_kernel);
-    std::vector<int64_t> versions;
-    for (const auto& t : parts) versions.push_back(t.defined() ? int64_t(t._version()) : -1);
-    bool same =
-        memo.composed.defined() && parts.size() == memo.parts.size() && versions == memo.versions;
-    for (size_t i = 0; same && i < parts.size(); ++i) same = parts[i].is_same(memo.parts[i]);
-    if (!same) {
-        memo.composed = compose(a);
-        memo.parts = std::move(parts);
-        memo.versions = std::move(versions);
-    }
-    return memo.composed;
-}
-
 torch::Tensor FastModel::fuse(const Atlas& a, const torch::Tensor& weight,
                               const torch::Tensor& what, bool with_warp) const {
     const torch::Tensor& src = what.defined() ? what : m_data.input;

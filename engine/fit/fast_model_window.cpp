@@ -322,4 +322,21 @@ torch::Tensor FastModel::window_alpha_residual(const Layers& layers,
     return sum / double(frames.size());
 }
 
+torch::Tensor FastModel::compose_still(const Atlas& a, StillAtlas& memo) const {
+    std::vector<torch::Tensor> parts(a.levels.begin(), a.levels.end());
+    parts.push_back(a.deblur);
+    parts.push_back(a.deblur_kernel);
+    std::vector<int64_t> versions;
+    for (const auto& t : parts) versions.push_back(t.defined() ? int64_t(t._version()) : -1);
+    bool same =
+        memo.composed.defined() && parts.size() == memo.parts.size() && versions == memo.versions;
+    for (size_t i = 0; same && i < parts.size(); ++i) same = parts[i].is_same(memo.parts[i]);
+    if (!same) {
+        memo.composed = compose(a);
+        memo.parts = std::move(parts);
+        memo.versions = std::move(versions);
+    }
+    return memo.composed;
+}
+
 }  // namespace refocus
