@@ -109,7 +109,16 @@ TEST_CASE(
     auto want = d.mask.clone();
     want[3][0].narrow(0, 0, 8).narrow(1, 60, 14).zero_();
     want[5][0].narrow(0, 14, 12).narrow(1, 20, 12).fill_(1.0f);
+    // The frames are cleaned on the cores: one thread gives the same.
+    FitData serial = d;
+    const int threads = at::get_num_threads();
+    at::set_num_threads(1);
+    const std::string line_serial = clean_subject_masks(serial);
+    at::set_num_threads(std::max(2, threads));
     const std::string line = clean_subject_masks(d);
+    at::set_num_threads(threads);
+    CHECK(line == line_serial);
+    CHECK(torch::equal(serial.mask, d.mask));
     MESSAGE(line);
     CHECK(line.find("1 part(s)") != std::string::npos);
     CHECK(line.find("1 frame(s)") != std::string::npos);
@@ -214,6 +223,16 @@ TEST_CASE("fuse_frames: each frame sampled over its footprint equals the whole a
     };
     const auto quick = fuse(true), reference = fuse(false);
     CHECK((quick - reference).abs().max().item<float>() < 1e-6f);
+    // The frames are summed in two parts, one a core: the same sums on one thread.
+    const int threads = at::get_num_threads();
+    at::set_num_threads(1);
+    const auto one_thread = fuse(true), one_thread_ref = fuse(false);
+    at::set_num_threads(2);
+    const auto two_threads = fuse(true);
+    at::set_num_threads(threads);
+    CHECK(torch::equal(one_thread, quick));
+    CHECK(torch::equal(two_threads, quick));
+    CHECK(torch::equal(one_thread_ref, reference));
 }
 
 TEST_CASE("sharpness_weight is (r + 1/2)^-4") {

@@ -464,7 +464,8 @@ TEST_CASE("a long clip keeps its arrays for the next command: the same data, the
     auto b = build_fit_data(p, mapped, log_b);
     INFO(log_b.lines().back());
     CHECK(said(log_b, "as the last command kept them"));
-    CHECK(b->finite_checked);
+    CHECK(b->input_finite);
+    CHECK(b->radius_finite);
     CHECK(torch::equal(a->input, b->input));
     CHECK(torch::equal(a->radius, b->radius));
     CHECK(torch::equal(a->to_ref, b->to_ref));

@@ -105,6 +105,17 @@ TEST_CASE(
     StackCocOptions relative;
     relative.absolute = false;
     auto rel = estimate_radius_from_stack(*d, relative);
+    // Frames run on the cores (each with its own blurs; the composites' sums in two fixed
+    // parts): one thread reads the same radius to the bit, floor and all.
+    {
+        const int threads = at::get_num_threads();
+        at::set_num_threads(1);
+        const auto one = estimate_radius_from_stack(*d);
+        at::set_num_threads(std::max(2, threads));
+        const auto two = estimate_radius_from_stack(*d);
+        at::set_num_threads(threads);
+        CHECK(torch::equal(one, two));
+    }
     auto gt = read_all_frames((c.clip / "coc_%04d.exr").string());
     auto alpha = read_all_frames((c.clip / "alpha_%04d.png").string());
     struct Err {
@@ -217,6 +228,15 @@ TEST_CASE(
     FitData d = split_over_ramp(2, 30, 40, 0.0375, {10, 10, 14, 12}, 5.0f, {10, 10, 14, 12}, ramp);
     REQUIRE(d.radius_fg.defined());
     REQUIRE(d.radius_bg.defined());
+    {  // A frame a core: one thread splits the same.
+        const int threads = at::get_num_threads();
+        at::set_num_threads(1);
+        FitData one = d;
+        split_radius_by_layer(one);
+        at::set_num_threads(threads);
+        CHECK(torch::equal(one.radius_fg, d.radius_fg));
+        CHECK(torch::equal(one.radius_bg, d.radius_bg));
+    }
     // Where each layer is sure (2 px inside its own region) it keeps the map as given.
     CHECK(torch::allclose(d.radius_fg[0].narrow(0, 12, 6).narrow(1, 16, 8),
                           torch::full({6, 8}, 5.0f)));

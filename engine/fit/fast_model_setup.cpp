@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <mutex>
 
 #include "fit/fast_model.h"
 #include "fit/losses.h"
@@ -195,7 +196,10 @@ FastModel::FrameFn FastModel::shrunk_once(FrameFn full) const {
     const int64_t k = proxy_factor(m_data.width, m_opts.align_width);
     if (k == 1) return {};
     // A clip array (mapped through work/ where the clip's frames are), made at the first read.
+    // Fusions read frames on two threads (fuse_frames), each frame on one: the array is made
+    // under a lock, a frame's slot by the thread that reads it.
     struct Memo {
+        std::mutex lock;
         torch::Tensor frames;
         std::vector<char> made;
     };
@@ -205,9 +209,15 @@ FastModel::FrameFn FastModel::shrunk_once(FrameFn full) const {
     return [full = std::move(full), k, memo, d](int64_t t) {
         if (!memo->made[t]) {
             const auto x = shrink_by(full(t), k);
-            if (!memo->frames.defined())
-                memo->frames = d->clip_array({int64_t(d->frames), x.size(0), x.size(1), x.size(2)});
-            memo->frames[t].copy_(x);
+            torch::Tensor frames;
+            {
+                std::lock_guard<std::mutex> hold(memo->lock);
+                if (!memo->frames.defined())
+                    memo->frames =
+                        d->clip_array({int64_t(d->frames), x.size(0), x.size(1), x.size(2)});
+                frames = memo->frames;
+            }
+            frames[t].copy_(x);
             memo->made[t] = 1;
         }
         return memo->frames[t];

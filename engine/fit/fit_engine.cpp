@@ -58,7 +58,7 @@ FitEngine::FitEngine(std::shared_ptr<FitData> data, const FitOptions& opts)
         torch::NoGradGuard g;
         // Frame by frame: a long clip's arrays are file mappings (util/mapped.h), and a check
         // over the whole clip at once would hold a clip-sized temporary.
-        if (!m_data->finite_checked) check_finite(*m_data);
+        check_finite(*m_data);
         // The running residual is made at the first step (finish_restore): an engine opened from
         // its checkpoint reads the checkpoint's instead.
     }

@@ -24,6 +24,7 @@
 #include "util/mapped.h"
 #include "util/debug.h"
 #include "util/error.h"
+#include "util/threads.h"
 #include "util/timing.h"
 
 namespace refocus {
@@ -119,9 +120,11 @@ torch::Tensor load_stack_radius(const Project& project, const FitData& d, const 
 
 void save_stack_radius(const Project& project, const torch::Tensor& radius, const std::string& key,
                        double fixed_focus_share, double scale) {
-    for (int t = 0; t < radius.size(0); ++t)
+    // A frame's file on each core: encoding a file is serial.
+    for_each_on_threads(int(radius.size(0)), 0, [&](int t, int) {
         write_image_file(stack_frame_path(project, t).string(),
                          tensor_to_image(radius[t].contiguous()), PixelFormat::ExrFloat, false);
+    });
     write_file_atomic(fs::path(prepare_dir(project)) / "stack_coc.json",
                       nlohmann::json{{"key", key},
                                      {"frames", radius.size(0)},
@@ -305,16 +308,20 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     std::vector<Image> frames(px.active() ? 0 : T), small(px.active() ? T : 0);
     d->input = d->clip_array({T, 3, H, W}, "input");
     // Two frames at a time: decoding a cached frame and scaling it down take one core each.
+    // Each frame is checked finite as it is read (check_finite then need not read the clip).
+    std::vector<char> finite(T, 0);
     at::parallel_for(0, T, 1, [&](int64_t t0, int64_t t1) {
         for (int64_t t = t0; t < t1; ++t) {
             Image f = project.read_frame(int(t));
             d->input[t].copy_(image_to_tensor(f));
+            finite[t] = finite_frame(d->input[t]);
             if (px.active())
                 small[t] = resize_image(f, px.width, px.height);
             else
                 frames[t] = std::move(f);
         }
     });
+    d->input_finite = std::all_of(finite.begin(), finite.end(), [](char ok) { return ok; });
     debug_memory("setup: frames read");
     read_noise(project, *d, log);
     if (px.active())
@@ -322,6 +329,9 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                  " proxies (prepare.proxy_width), scaled up to " + std::to_string(project.width) +
                  "x" + std::to_string(project.height));
 
+    // The radius comes from the clip as a focal stack unless maps are given or the clip is too
+    // short for one: the preparation's per-frame estimate is then neither made nor scaled up.
+    const bool stack_radius = opts.coc_path.empty() && T >= 3 && !opts.single_image_coc;
     PrepareResult prep;
     bool reuse = !opts.force_prepare && has_prepare(project);
     if (reuse) {
@@ -331,7 +341,8 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         // Reuse only what was prepared for the same masks, at the same size, and with a radius
         // estimate if needed.
         const std::string want_masks = opts.mask_path.empty() ? "auto" : opts.mask_path;
-        if (prep.mask_source != want_masks || (opts.coc_path.empty() && prep.coc.empty()) ||
+        if (prep.mask_source != want_masks ||
+            (opts.coc_path.empty() && !stack_radius && prep.coc.empty()) ||
             prep.width != px.width || prep.height != px.height)
             reuse = false;
         else
@@ -343,14 +354,20 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
         // "static" allows that much (docs/method.md, Preparation).
         po.motion.static_max_px = 2.0;
         po.mask_path = opts.mask_path;
-        po.estimate_coc = opts.coc_path.empty();
+        po.estimate_coc = opts.coc_path.empty() && !stack_radius;
         po.full_width = project.width, po.full_height = project.height;
+        // The flow's files are written while the masks are made (save_prepare then skips them).
+        const int prep_w = px.active() ? px.width : int(W),
+                  prep_h = px.active() ? px.height : int(H);
+        po.flow_ready = [&](const ClipFlow& flow) {
+            save_prepare_flow(project, flow, prep_w, prep_h);
+        };
         log.set_span(0.03, 0.2);
         clock.next("data: preparing", "preparing the clip");
         prep = prepare_clip(px.active() ? small : frames, po, log);
         log.set_span(0.0, 1.0);
         log.stage("saving the preparation", 0.2, 0.23);
-        save_prepare(project, prep);
+        save_prepare(project, prep, true);
         // The masks as stored (8-bit): the subject's track and atlas box are computed from them,
         // and a reopened project (export, the studio, --resume) must rebuild the same model.
         for (Image& m : prep.masks)
@@ -380,10 +397,12 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                  ", 7 px is " + fmt2(kernel_radius_for_coc(7.0, d->blur)) + ")");
     }
     // The preparation's results at full size, frame by frame (scaled up from the proxy).
-    d->radius = d->clip_array({T, H, W}, "radius");
-    for (int t = 0; t < T && (!radius.empty() || !prep.coc.empty()); ++t)
-        d->radius[t].copy_(
-            image_to_tensor(radius.empty() ? scale_radius(prep.coc[t], W, H) : radius[t])[0]);
+    if (!stack_radius) {
+        d->radius = d->clip_array({T, H, W}, "radius");
+        for (int t = 0; t < T && (!radius.empty() || !prep.coc.empty()); ++t)
+            d->radius[t].copy_(
+                image_to_tensor(radius.empty() ? scale_radius(prep.coc[t], W, H) : radius[t])[0]);
+    }
     radius.clear();
     std::vector<Image>().swap(prep.coc);  // each is at full size in d->radius now
     d->static_camera = prep.decisions.static_camera;
@@ -391,10 +410,12 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     if (!prep.flow.fwd.empty()) {
         d->flow_fwd = d->clip_array({T - 1, 2, H, W}, "flow_fwd");
         d->flow_valid = d->clip_array({T - 1, 1, H, W}, "flow_valid");
-        for (int t = 0; t + 1 < T; ++t) {
-            d->flow_fwd[t].copy_(image_to_tensor(scale_flow(prep.flow.fwd[t], W, H)));
-            d->flow_valid[t].copy_(image_to_tensor(scale_binary(prep.flow.fwd_valid[t], W, H)));
-        }
+        at::parallel_for(0, T - 1, 1, [&](int64_t t0, int64_t t1) {
+            for (int64_t t = t0; t < t1; ++t) {
+                d->flow_fwd[t].copy_(image_to_tensor(scale_flow(prep.flow.fwd[t], W, H)));
+                d->flow_valid[t].copy_(image_to_tensor(scale_binary(prep.flow.fwd_valid[t], W, H)));
+            }
+        });
     }
     prep.flow = ClipFlow();  // at full size in d->flow_*: a long clip's flow is GBs
     debug_memory("setup: radius and flow scaled up");
@@ -454,7 +475,7 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
     std::vector<Image>().swap(prep.masks);
     release_freed_memory();  // before the focal stack's working set
     if (opts.coc_path.empty()) {
-        if (d->frames >= 3 && !opts.single_image_coc) {
+        if (stack_radius) {
             clock.next("data: the focal-stack radius", "the focal-stack radius");
             const std::string key = stack_key(project, *d, opts);
             torch::Tensor cached = load_stack_radius(project, *d, key, d->fixed_focus_share);
@@ -479,8 +500,14 @@ std::shared_ptr<FitData> build_fit_data(const Project& project, const FitSetupOp
                     d->radius = r;
                 } else {
                     d->radius = d->clip_array({T, H, W}, "radius");
-                    for (int64_t t = 0; t < T; ++t)
-                        d->radius[t].copy_(radius_at_size(r[t], H, W, scale));
+                    std::vector<char> ok(T, 0);  // checked while the frame is at hand
+                    at::parallel_for(0, T, 1, [&](int64_t t0, int64_t t1) {
+                        for (int64_t t = t0; t < t1; ++t) {
+                            d->radius[t].copy_(radius_at_size(r[t], H, W, scale));
+                            ok[t] = finite_radius(d->radius[t]);
+                        }
+                    });
+                    d->radius_finite = std::all_of(ok.begin(), ok.end(), [](char v) { return v; });
                 }
             }
             log.info(std::string("radius: ") + (cached.defined() ? "reused from prep/, " : "") +

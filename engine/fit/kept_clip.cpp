@@ -91,7 +91,7 @@ bool open_kept_clip(FitData& d) {
         d.has_subject = subject;
         d.fixed_focus_share = m.at("fixed_focus_share").get<double>();
         d.to_ref = torch::tensor(to_ref, torch::kFloat64).view({T, 3, 3}).clone();
-        d.finite_checked = true;  // keep_clip checked them
+        d.input_finite = d.radius_finite = true;  // keep_clip checked them
         if (memo.vx.size() == size_t(T)) {
             memo.mask = d.mask, memo.flow = d.flow_fwd;
             memo.versions = {version(d.mask), version(d.flow_fwd)};
@@ -107,6 +107,7 @@ void keep_clip(FitData& d, PrepareLog& log) {
     if (d.cache_dir.empty()) return;
     try {
         check_finite(d);  // what is kept is known good: the next command need not read it all
+        d.input_finite = d.radius_finite = true;
     } catch (const Error&) {
         return;  // the engine says what is wrong
     }
@@ -117,7 +118,6 @@ void keep_clip(FitData& d, PrepareLog& log) {
         keep_clip_array(d, "flow_fwd", d.flow_fwd, d.cache_key);
         keep_clip_array(d, "flow_valid", d.flow_valid, d.cache_key);
         keep_clip_manifest(d, clip_manifest(d));
-        d.finite_checked = true;
     } catch (const std::exception& e) {
         log.info(std::string("clip arrays: not kept for the next command (") + e.what() + ")");
     }

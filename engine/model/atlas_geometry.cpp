@@ -57,13 +57,16 @@ void track_from_masks(const FitData& d, std::vector<double>& vx, std::vector<dou
          xs = torch::arange(m.size(2), torch::kFloat32);
     auto grid = torch::meshgrid({ys, xs}, "ij");
     // Frame by frame: a long clip's masks are a file mapping (util/mapped.h).
+    // A frame a core: each frame's sums are made on one thread, whatever the thread count.
     std::vector<double> mass(T), cx(T), cy(T);
-    for (int64_t t = 0; t < T; ++t) {
-        const auto mt = m[t];
-        mass[t] = std::max(mt.sum().item<double>(), 1e-6);
-        cx[t] = (mt * grid[1]).sum().item<double>() / mass[t];
-        cy[t] = (mt * grid[0]).sum().item<double>() / mass[t];
-    }
+    at::parallel_for(0, T, 1, [&](int64_t t0, int64_t t1) {
+        for (int64_t t = t0; t < t1; ++t) {
+            const auto mt = m[t];
+            mass[t] = std::max(mt.sum().item<double>(), 1e-6);
+            cx[t] = (mt * grid[1]).sum().item<double>() / mass[t];
+            cy[t] = (mt * grid[0]).sum().item<double>() / mass[t];
+        }
+    });
     std::vector<double> rx(T), ry(T);
     int64_t last = -1;
     for (int64_t t = 0; t < T; ++t) {
@@ -103,29 +106,44 @@ void track_from_masks(const FitData& d, std::vector<double>& vx, std::vector<dou
     // about the core's centre c_t, so v_{t+1} = c_t + f̄_t − s_t (c_t − v_t).
     std::vector<double> zx(T), zy(T), zs(T, 1.0);
     zx[0] = rx[0], zy[0] = ry[0];
-    for (int64_t t = 0; t + 1 < T; ++t) {
-        auto sel = core(t);
-        if (flow_valid.defined()) sel = sel & (flow_valid[t][0] > 0.5);
-        double dx, dy, st = 1.0, ccx = rx[t], ccy = ry[t], zdx, zdy;
-        if (sel.sum().item<int64_t>() >= 32) {
+    // Each pair's step measured on the cores (a pair reads its own flow and mask), then chained.
+    struct Step {
+        bool measured = false;
+        double dx = 0, dy = 0, st = 1.0, ccx = 0, ccy = 0, zdx = 0, zdy = 0;
+    };
+    std::vector<Step> steps(std::max<int64_t>(T - 1, 0));
+    at::parallel_for(0, T - 1, 1, [&](int64_t t0, int64_t t1) {
+        for (int64_t t = t0; t < t1; ++t) {
+            auto sel = core(t);
+            if (flow_valid.defined()) sel = sel & (flow_valid[t][0] > 0.5);
+            if (sel.sum().item<int64_t>() < 32) continue;
+            Step& p = steps[t];
+            p.measured = true;
             auto fx = flow_fwd[t][0].masked_select(sel), fy = flow_fwd[t][1].masked_select(sel);
-            dx = fx.median().item<double>();
-            dy = fy.median().item<double>();
+            p.dx = fx.median().item<double>();
+            p.dy = fy.median().item<double>();
             auto px = grid[1].masked_select(sel).to(torch::kFloat64),
                  py = grid[0].masked_select(sel).to(torch::kFloat64);
-            ccx = px.mean().item<double>(), ccy = py.mean().item<double>();
-            auto qx = px - ccx, qy = py - ccy;
+            p.ccx = px.mean().item<double>(), p.ccy = py.mean().item<double>();
+            auto qx = px - p.ccx, qy = py - p.ccy;
             const double den = (qx * qx + qy * qy).sum().item<double>();
             if (den > 1e-6)
-                st = 1.0 +
-                     ((qx * (fx.to(torch::kFloat64) - dx)) + (qy * (fy.to(torch::kFloat64) - dy)))
-                             .sum()
-                             .item<double>() /
-                         den;
-            st = std::clamp(st, 0.8, 1.25);
+                p.st = 1.0 + ((qx * (fx.to(torch::kFloat64) - p.dx)) +
+                              (qy * (fy.to(torch::kFloat64) - p.dy)))
+                                     .sum()
+                                     .item<double>() /
+                                 den;
+            p.st = std::clamp(p.st, 0.8, 1.25);
             // The flow at the core's centre: the median once the expansion is taken out.
-            zdx = (fx.to(torch::kFloat64) - (st - 1.0) * qx).median().item<double>();
-            zdy = (fy.to(torch::kFloat64) - (st - 1.0) * qy).median().item<double>();
+            p.zdx = (fx.to(torch::kFloat64) - (p.st - 1.0) * qx).median().item<double>();
+            p.zdy = (fy.to(torch::kFloat64) - (p.st - 1.0) * qy).median().item<double>();
+        }
+    });
+    for (int64_t t = 0; t + 1 < T; ++t) {
+        double dx, dy, st = 1.0, ccx = rx[t], ccy = ry[t], zdx, zdy;
+        if (steps[t].measured) {
+            const Step& p = steps[t];
+            dx = p.dx, dy = p.dy, st = p.st, ccx = p.ccx, ccy = p.ccy, zdx = p.zdx, zdy = p.zdy;
         } else if (t > 0 && !d.legacy_track_gaps) {
             // No measurable subject (its mask is missing): the previous step again. The masks'
             // centroids hold the last one seen there, and stepping by them after the gap adds
@@ -309,22 +327,31 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
     auto ys = torch::arange(height, torch::kFloat32), xs = torch::arange(width, torch::kFloat32);
     auto g = torch::meshgrid({ys, xs}, "ij");
     auto pts = torch::stack({g[1].flatten(), g[0].flatten(), torch::ones({height * width})}, 0);
-    torch::Tensor acc, wsum = torch::zeros({1, height, width}), ones, scale;
     auto opts = F::GridSampleFuncOptions()
                     .mode(torch::kBilinear)
                     .padding_mode(torch::kZeros)
                     .align_corners(false);
-    for (int64_t t = 0; t < T; ++t) {
+    // The frames in two interleaved sums (t even, t odd), one a core: LibTorch's samplers run a
+    // single image on one thread. Two sums whatever the thread count, so the result is the same
+    // on any machine.
+    struct Sum {
+        torch::Tensor acc, wsum, ones, scale;
+    };
+    constexpr int64_t kSums = 2;
+    Sum sums[kSums];
+    auto add_frame = [&](int64_t t, Sum& sum) {
         // The whole atlas, or the frame's window of it.
         TexelBox box{0, 0, width, height};
         if (window) {
             box = window(t);
-            if (box.w <= 0 || box.h <= 0) continue;
+            if (box.w <= 0 || box.h <= 0) return;
         }
         const torch::Tensor s = src(t);
+        torch::Tensor &acc = sum.acc, &wsum = sum.wsum, &ones = sum.ones, &scale = sum.scale;
         if (!acc.defined()) {  // every frame has the first one's size
             const int64_t C = s.size(0), H = s.size(1), W = s.size(2);
             acc = torch::zeros({C, height, width});
+            wsum = torch::zeros({1, height, width});
             ones = torch::ones({1, 1, H, W});
             scale = torch::tensor({2.0f / W, 2.0f / H});
         }
@@ -336,21 +363,21 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
             const int64_t x0 = std::max(box.x0, dx), y0 = std::max(box.y0, dy),
                           x1 = std::min(box.x0 + box.w, dx + W),
                           y1 = std::min(box.y0 + box.h, dy + H);
-            if (x1 <= x0 || y1 <= y0) continue;
+            if (x1 <= x0 || y1 <= y0) return;
             auto cut = [&](const torch::Tensor& x) {
                 return x.narrow(1, y0 - dy, y1 - y0).narrow(2, x0 - dx, x1 - x0);
             };
             const auto w = cut(weight(t));
             acc.narrow(1, y0, y1 - y0).narrow(2, x0, x1 - x0) += cut(s) * w;
             wsum.narrow(1, y0, y1 - y0).narrow(2, x0, x1 - x0) += w;
-            continue;
+            return;
         }
         // Without a window, the frame's footprint (its corners' box, grown by the bicubic
         // taps): texels past it read nothing of the frame, and a subject's atlas spans its whole
         // track (1920x1080x240 walkers: 2.4 frames).
         if (shortcuts && !window && !offset &&
             !(box = footprint(to_atlas[t], s.size(2), s.size(1), width, height)).w)
-            continue;
+            return;
         torch::Tensor at = pts;
         if (box.w != width || box.h != height) {
             at = pts.view({3, height, width})
@@ -382,6 +409,18 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
         auto w = F::grid_sample(weight(t).unsqueeze(0), grid, opts)[0] * (inside > 0.999);
         acc.narrow(1, box.y0, box.h).narrow(2, box.x0, box.w) += col * w;
         wsum.narrow(1, box.y0, box.h).narrow(2, box.x0, box.w) += w;
+    };
+    const bool grad = torch::GradMode::is_enabled();  // thread-local: the workers take the caller's
+    at::parallel_for(0, kSums, 1, [&](int64_t c0, int64_t c1) {
+        torch::AutoGradMode mode(grad);
+        for (int64_t c = c0; c < c1; ++c)
+            for (int64_t t = c; t < T; t += kSums) add_frame(t, sums[c]);
+    });
+    torch::Tensor acc, wsum;
+    for (const Sum& sum : sums) {
+        if (!sum.acc.defined()) continue;
+        acc = acc.defined() ? acc + sum.acc : sum.acc;
+        wsum = wsum.defined() ? wsum + sum.wsum : sum.wsum;
     }
     if (!acc.defined()) return fallback.defined() ? fallback : torch::zeros({1, height, width});
     auto mean = fallback.defined()
@@ -419,48 +458,55 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
     std::vector<int64_t> others;
     for (int64_t i = 0, n = std::min<int64_t>(T, 33); i < n; ++i)
         others.push_back(n == T ? i : std::llround(double(i) * double(T - 1) / double(n - 1)));
-    for (int64_t t = 0; t < T; ++t) {
-        cv::Mat m(int(H), int(W), CV_8U, const_cast<uint8_t*>(mb + t * H * W));
-        cv::Mat labels, stats, centroids;
-        const int n = cv::connectedComponentsWithStats(m, labels, stats, centroids, 8, CV_32S);
-        cv::Mat keep = cv::Mat::zeros(int(H), int(W), CV_8U);
-        for (int k = 1; k < n; ++k) {
-            // How often the other frames' masks hold this part's pixels at the same place on the
-            // subject (moved along the track); a pixel that leaves a frame does not count there.
-            int64_t hits = 0, seen = 0;
-            const int x0 = stats.at<int>(k, cv::CC_STAT_LEFT),
-                      y0 = stats.at<int>(k, cv::CC_STAT_TOP);
-            const int w = stats.at<int>(k, cv::CC_STAT_WIDTH),
-                      h = stats.at<int>(k, cv::CC_STAT_HEIGHT);
-            for (int y = y0; y < y0 + h; y += 2)
-                for (int x = x0; x < x0 + w; x += 2) {
-                    if (labels.at<int>(y, x) != k) continue;
-                    for (const int64_t u : others) {
-                        if (u == t) continue;
-                        const double f = sc[u] / sc[t];
-                        const int v = at(u, (x - vx[t]) * f + vx[u], (y - vy[t]) * f + vy[u]);
-                        if (v < 0) continue;
-                        ++seen;
-                        hits += v;
+    // Frame by frame on the cores: a frame's parts read the binary masks only.
+    std::vector<int> dropped_in(T, 0);
+    at::parallel_for(0, T, 1, [&](int64_t t0, int64_t t1) {
+        for (int64_t t = t0; t < t1; ++t) {
+            cv::Mat m(int(H), int(W), CV_8U, const_cast<uint8_t*>(mb + t * H * W));
+            cv::Mat labels, stats, centroids;
+            const int n = cv::connectedComponentsWithStats(m, labels, stats, centroids, 8, CV_32S);
+            cv::Mat keep = cv::Mat::zeros(int(H), int(W), CV_8U);
+            for (int k = 1; k < n; ++k) {
+                // How often the other frames' masks hold this part's pixels at the same place on
+                // the subject (moved along the track); a pixel that leaves a frame does not count
+                // there.
+                int64_t hits = 0, seen = 0;
+                const int x0 = stats.at<int>(k, cv::CC_STAT_LEFT),
+                          y0 = stats.at<int>(k, cv::CC_STAT_TOP);
+                const int w = stats.at<int>(k, cv::CC_STAT_WIDTH),
+                          h = stats.at<int>(k, cv::CC_STAT_HEIGHT);
+                for (int y = y0; y < y0 + h; y += 2)
+                    for (int x = x0; x < x0 + w; x += 2) {
+                        if (labels.at<int>(y, x) != k) continue;
+                        for (const int64_t u : others) {
+                            if (u == t) continue;
+                            const double f = sc[u] / sc[t];
+                            const int v = at(u, (x - vx[t]) * f + vx[u], (y - vy[t]) * f + vy[u]);
+                            if (v < 0) continue;
+                            ++seen;
+                            hits += v;
+                        }
                     }
+                const double pers = seen ? double(hits) / double(seen) : 1.0;
+                const int a = stats.at<int>(k, cv::CC_STAT_AREA);
+                if (debug)
+                    std::fprintf(stderr, "mask %lld part %d: %d px at (%d,%d) persistence %.2f\n",
+                                 (long long)t, k, a, x0, y0, pers);
+                if (pers < min_persistence) {
+                    ++dropped_in[t];
+                    continue;
                 }
-            const double pers = seen ? double(hits) / double(seen) : 1.0;
-            const int a = stats.at<int>(k, cv::CC_STAT_AREA);
-            if (debug)
-                std::fprintf(stderr, "mask %lld part %d: %d px at (%d,%d) persistence %.2f\n",
-                             (long long)t, k, a, x0, y0, pers);
-            if (pers < min_persistence) {
-                ++dropped;
-                continue;
+                keep.setTo(255, labels == k);
+                area[t] += a;
             }
-            keep.setTo(255, labels == k);
-            area[t] += a;
+            // Kept parts with their soft edge (the mask's values within 2 px of them).
+            cv::dilate(keep, keep, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
+            auto kt =
+                torch::from_blob(keep.data, {1, H, W}, torch::kUInt8).to(torch::kFloat32) / 255.0;
+            kept[t].copy_(d.mask[t] * kt);
         }
-        // Kept parts with their soft edge (the mask's values within 2 px of them).
-        cv::dilate(keep, keep, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
-        auto kt = torch::from_blob(keep.data, {1, H, W}, torch::kUInt8).to(torch::kFloat32) / 255.0;
-        kept[t].copy_(d.mask[t] * kt);
-    }
+    });
+    for (const int n : dropped_in) dropped += n;
     // A frame whose mask lost most of the subject (under 30% of the clip's median area, at the
     // subject's size in that frame) takes the nearest frame's that holds it (over 50%), moved
     // along the track, where that covers at least twice as much of the frame (a subject leaving
@@ -478,34 +524,41 @@ std::string clean_subject_masks(FitData& d, double min_persistence) {
             if (norm[t] >= 0.5 * med) good.push_back(t);
         auto ys = torch::arange(H, torch::kFloat64), xs = torch::arange(W, torch::kFloat64);
         auto g = torch::meshgrid({ys, xs}, "ij");
-        for (int64_t t = 0; !good.empty() && t < T; ++t) {
-            if (norm[t] >= 0.3 * med) continue;
-            int64_t u = good.front();
-            for (int64_t k : good)
-                if (std::abs(k - t) < std::abs(u - t)) u = k;
-            // Frame t's pixel p is frame u's (p − c_t)·s_u/s_t + c_u (grid_sample, align_corners
-            // false).
-            const double f = sc[u] / sc[t];
-            auto px = (g[1] - vx[t]) * f + vx[u], py = (g[0] - vy[t]) * f + vy[u];
-            auto grid =
-                torch::stack({(px + 0.5) * (2.0 / W) - 1.0, (py + 0.5) * (2.0 / H) - 1.0}, -1)
-                    .to(torch::kFloat32)
-                    .unsqueeze(0);
-            auto moved = F::grid_sample(kept[u].unsqueeze(0), grid,
-                                        F::GridSampleFuncOptions()
-                                            .mode(torch::kBilinear)
-                                            .padding_mode(torch::kZeros)
-                                            .align_corners(false))[0];
-            const double moved_area = (moved > 0.5).sum().item<double>();
-            if (debug)
-                std::fprintf(stderr,
-                             "mask %lld: %.0f px (median %.0f at its size), frame %lld's moved "
-                             "onto it %.0f px\n",
-                             (long long)t, area[t], med * sc[t] * sc[t], (long long)u, moved_area);
-            if (moved_area < 2.0 * area[t] || moved_area < 16) continue;
-            kept[t].copy_(moved);
-            ++filled;
-        }
+        // A frame a core: a frame refilled (under 0.3 of the median) is never one that lends
+        // its mask (over 0.5), so each reads masks no other writes.
+        std::vector<char> filled_in(T, 0);
+        at::parallel_for(0, good.empty() ? 0 : T, 1, [&](int64_t t0, int64_t t1) {
+            for (int64_t t = t0; t < t1; ++t) {
+                if (norm[t] >= 0.3 * med) continue;
+                int64_t u = good.front();
+                for (int64_t k : good)
+                    if (std::abs(k - t) < std::abs(u - t)) u = k;
+                // Frame t's pixel p is frame u's (p − c_t)·s_u/s_t + c_u (grid_sample,
+                // align_corners false).
+                const double f = sc[u] / sc[t];
+                auto px = (g[1] - vx[t]) * f + vx[u], py = (g[0] - vy[t]) * f + vy[u];
+                auto grid =
+                    torch::stack({(px + 0.5) * (2.0 / W) - 1.0, (py + 0.5) * (2.0 / H) - 1.0}, -1)
+                        .to(torch::kFloat32)
+                        .unsqueeze(0);
+                auto moved = F::grid_sample(kept[u].unsqueeze(0), grid,
+                                            F::GridSampleFuncOptions()
+                                                .mode(torch::kBilinear)
+                                                .padding_mode(torch::kZeros)
+                                                .align_corners(false))[0];
+                const double moved_area = (moved > 0.5).sum().item<double>();
+                if (debug)
+                    std::fprintf(stderr,
+                                 "mask %lld: %.0f px (median %.0f at its size), frame %lld's moved "
+                                 "onto it %.0f px\n",
+                                 (long long)t, area[t], med * sc[t] * sc[t], (long long)u,
+                                 moved_area);
+                if (moved_area < 2.0 * area[t] || moved_area < 16) continue;
+                kept[t].copy_(moved);
+                filled_in[t] = 1;
+            }
+        });
+        for (const char f : filled_in) filled += f;
     }
     d.mask = kept;
     char line[240];

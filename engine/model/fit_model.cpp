@@ -13,12 +13,19 @@ torch::Tensor FitData::clip_array(at::IntArrayRef shape, const char* keep) const
     return mapped_dir.empty() ? torch::zeros(shape) : mapped_tensor(shape, mapped_dir);
 }
 
+bool finite_frame(const torch::Tensor& x) {
+    return torch::isfinite(x).all().item<bool>();
+}
+
+bool finite_radius(const torch::Tensor& r) {
+    return finite_frame(r) && !(r < 0).any().item<bool>();
+}
+
 void check_finite(const FitData& d) {
     for (int64_t t = 0; t < d.frames; ++t) {
-        if (!torch::isfinite(d.input[t]).all().item<bool>())
+        if (!d.input_finite && !finite_frame(d.input[t]))
             throw Error("fit: the input frames contain NaN/Inf");
-        if (!torch::isfinite(d.radius[t]).all().item<bool>() ||
-            (d.radius[t] < 0).any().item<bool>())
+        if (!d.radius_finite && !finite_radius(d.radius[t]))
             throw Error("fit: the radius maps contain NaN/Inf or negative values");
     }
 }

@@ -59,9 +59,10 @@ struct FitData {
     // With `keep` and a clip cache (below), the array is made in that cache's file of the name,
     // which keep_clip_array (model/clip_cache.h) then publishes.
     torch::Tensor clip_array(at::IntArrayRef shape, const char* keep = nullptr) const;
-    // The input and the radius are known finite and the radius non-negative (checked when they
-    // were kept, model/clip_cache.h): the engine's own check of them is skipped.
-    bool finite_checked = false;
+    // The input is known finite, the radius finite and non-negative (checked frame by frame as
+    // they were made, or when they were kept, model/clip_cache.h): check_finite skips what is
+    // known, so a long clip's arrays are not read again for it.
+    bool input_finite = false, radius_finite = false;
     // subject_track's answers (model/atlas_geometry.h) for the masks and flow they were read
     // from (held, so that they are the same arrays, and their version: not written since), with
     // or without the scale, and the track's legacy flags; keep_clip stores the fit's own with
@@ -91,7 +92,12 @@ struct FitData {
 
 // Throws unless every input frame is finite and every radius finite and non-negative (frame by
 // frame: a long clip's arrays are file mappings, util/mapped.h).
+// Throws unless the input is finite and the radius finite and non-negative (what d's flags say
+// is known is not read again).
 void check_finite(const FitData& d);
+// One frame's check, for the flags above: finite; finite and non-negative.
+bool finite_frame(const torch::Tensor& x);
+bool finite_radius(const torch::Tensor& r);
 
 // One rendered batch of frames. All [B,...].
 struct Layers {

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <future>
 #include <nlohmann/json.hpp>
 
 #include "io/image_file.h"
@@ -93,6 +94,10 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
     log.stage("optical flow", 0.0, 0.45);
     auto t0 = std::chrono::steady_clock::now();
     res.flow = compute_clip_flow(frames, opts.flow);
+    // The later stages read res.flow only; the future's destructor waits for it on a throw.
+    std::future<void> flow_done;
+    if (opts.flow_ready)
+        flow_done = std::async(std::launch::async, [&] { opts.flow_ready(res.flow); });
     if (n > 1) {
         double valid = 0;
         for (const auto& v : res.flow.fwd_valid) valid += mean_of(v);
@@ -201,6 +206,7 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
             log.info("frames already sharp: " + std::to_string(sharp) + " of " + nf +
                      " (radius < " + fmt("%.2f", opts.sharp_radius_px) + " px almost everywhere)");
     }
+    if (flow_done.valid()) flow_done.get();
     res.log = log.lines();
     return res;
 }
@@ -262,33 +268,52 @@ Image read_expect(const std::string& path, int t, int w, int h, int channels) {
 
 }  // namespace
 
-void save_prepare(const Project& project, const PrepareResult& r) {
+namespace {
+
+// The preparation's folder, checked against the project and emptied of its marker: a new
+// preparation replaces the old one, and the marker goes first so that a crash in between leaves
+// no half-old, half-new folder that looks complete.
+std::string begin_prepare_files(const Project& project, int width, int height, int frames) {
     const std::string dir = prepare_dir(project);
-    if (!made_for(project, r.width, r.height) || r.frames != project.frames)
-        throw Error(file_error(dir, "preparation is for " + std::to_string(r.width) + "x" +
-                                        std::to_string(r.height) + ", " + std::to_string(r.frames) +
+    if (!made_for(project, width, height) || frames != project.frames)
+        throw Error(file_error(dir, "preparation is for " + std::to_string(width) + "x" +
+                                        std::to_string(height) + ", " + std::to_string(frames) +
                                         " frames; the project is " + std::to_string(project.width) +
                                         "x" + std::to_string(project.height) + ", " +
                                         std::to_string(project.frames) + " frames"));
-    if (int(r.masks.size()) != r.frames || int(r.motion.to_reference.size()) != r.frames ||
-        int(r.flow.fwd.size()) != std::max(0, r.frames - 1) ||
-        (!r.coc.empty() && int(r.coc.size()) != r.frames))
-        throw Error(file_error(dir, "preparation result is incomplete (per-frame counts differ)"));
     std::error_code ec;
     fs::create_directories(dir, ec);
     if (ec) throw Error(file_error(dir, "cannot create folder: " + ec.message()));
-    // A new preparation replaces the old one: the marker goes first so that a crash in between
-    // leaves no half-old, half-new folder that looks complete.
     fs::remove(fs::path(dir) / "prepare.json", ec);
+    return dir;
+}
+
+void write_flow_pair(const std::string& dir, const ClipFlow& flow, int t) {
+    write_image_file(seq(dir, kFlowFwd, t), pack_flow(flow.fwd[t], flow.fwd_valid[t]),
+                     PixelFormat::ExrFloat, false);
+    write_image_file(seq(dir, kFlowBwd, t), pack_flow(flow.bwd[t], flow.bwd_valid[t]),
+                     PixelFormat::ExrFloat, false);
+}
+
+}  // namespace
+
+void save_prepare_flow(const Project& project, const ClipFlow& flow, int width, int height) {
+    const int frames = int(flow.fwd.size()) + 1;
+    const std::string dir = begin_prepare_files(project, width, height, frames);
+    for (int t = 0; t + 1 < frames; ++t) write_flow_pair(dir, flow, t);
+}
+
+void save_prepare(const Project& project, const PrepareResult& r, bool flow_saved) {
+    if (int(r.masks.size()) != r.frames || int(r.motion.to_reference.size()) != r.frames ||
+        int(r.flow.fwd.size()) != std::max(0, r.frames - 1) ||
+        (!r.coc.empty() && int(r.coc.size()) != r.frames))
+        throw Error(file_error(prepare_dir(project),
+                               "preparation result is incomplete (per-frame counts differ)"));
+    const std::string dir = begin_prepare_files(project, r.width, r.height, r.frames);
 
     // A frame's files on each core: encoding a file is serial (1920x1080x240: 24 s on one).
     for_each_on_threads(r.frames, 0, [&](int t, int) {
-        if (t + 1 < r.frames) {
-            write_image_file(seq(dir, kFlowFwd, t), pack_flow(r.flow.fwd[t], r.flow.fwd_valid[t]),
-                             PixelFormat::ExrFloat, false);
-            write_image_file(seq(dir, kFlowBwd, t), pack_flow(r.flow.bwd[t], r.flow.bwd_valid[t]),
-                             PixelFormat::ExrFloat, false);
-        }
+        if (t + 1 < r.frames && !flow_saved) write_flow_pair(dir, r.flow, t);
         write_image_file(seq(dir, kMask, t), r.masks[t], PixelFormat::Png8, false);
         if (!r.coc.empty())
             write_image_file(seq(dir, kCoc, t), r.coc[t], PixelFormat::ExrFloat, false);

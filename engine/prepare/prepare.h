@@ -22,6 +22,8 @@
 #include "io/image.h"
 #include "prepare/coc.h"
 #include "prepare/flow.h"
+#include <functional>
+
 #include "prepare/log.h"
 #include "prepare/masks.h"
 #include "prepare/motion.h"
@@ -47,6 +49,10 @@ struct PrepareOptions {
     // The clip's size when the frames are proxies (proxy.h): given masks come at this size and
     // are shrunk to the frames'. 0: the frames' size.
     int full_width = 0, full_height = 0;
+    // Called on a thread of its own once the flow is made, while the later stages run (the fit
+    // writes the flow's files there: GrabCut, in the masks, leaves a core free); prepare_clip
+    // waits for it, and rethrows what it throws, before it returns.
+    std::function<void(const ClipFlow&)> flow_ready;
 };
 
 // What the fit may skip, decided per clip.
@@ -77,7 +83,11 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
 std::string prepare_dir(const Project& project);
 // Writes prep/ (every file atomically, prepare.json last), at the size it was made at: the
 // project's or its proxy's for some proxy width. load_prepare reads either back.
-void save_prepare(const Project& project, const PrepareResult& result);
+// `flow_saved`: save_prepare_flow wrote the flow's files already.
+void save_prepare(const Project& project, const PrepareResult& result, bool flow_saved = false);
+// The flow's files of a preparation of width × height (the first part of save_prepare, which
+// then need not write them); the folder's prepare.json goes first.
+void save_prepare_flow(const Project& project, const ClipFlow& flow, int width, int height);
 // Reads and validates prep/ against the project (counts, sizes, channels); refocus::Error
 // names the file and what is wrong.
 PrepareResult load_prepare(const Project& project);

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 
 #include "model/atlas_geometry.h"
 #include "radius/spectral_blur.h"
@@ -92,7 +93,7 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
         auto inv = torch::inverse(c.to_canvas[t]);
         v.reg = warp_to_canvas(d.input[t].unsqueeze(0), inv, Hc, Wc);
         auto reg_valid = (warp_to_canvas(ones, inv, Hc, Wc, true)[0] > 0.999).to(torch::kFloat32);
-        if (keep_valid) c.reg_valid.push_back(reg_valid);
+        if (keep_valid) c.reg_valid[t] = reg_valid;
         auto luma =
             (0.299 * v.reg.select(1, 0) + 0.587 * v.reg.select(1, 1) + 0.114 * v.reg.select(1, 2))
                 .unsqueeze(1);
@@ -105,28 +106,53 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
                         .to(torch::kFloat32);
         return v;
     };
-    auto cmax = torch::zeros({1, 1, Hc, Wc}), comax = torch::zeros({1, 1, Hc, Wc});
-    for (int64_t t = 0; t < T; ++t) {
+    // Each pass over the frames in two interleaved parts (t even, t odd), one a core (LibTorch's
+    // sampler runs one image on one thread); two parts whatever the thread count, so the sums
+    // are the same on any machine.
+    constexpr int64_t kParts = 2;
+    c.reg_valid.resize(T);
+    struct Part {
+        torch::Tensor cmax, comax, wsum, acc, wsum_o, acc_o;
+    };
+    Part parts[kParts];
+    auto each_part = [&](const std::function<void(int64_t t, Part&)>& fn) {
+        at::parallel_for(0, kParts, 1, [&](int64_t p0, int64_t p1) {
+            for (int64_t p = p0; p < p1; ++p)
+                for (int64_t t = p; t < T; t += kParts) fn(t, parts[p]);
+        });
+    };
+    for (Part& p : parts) p.cmax = torch::zeros({1, 1, Hc, Wc}), p.comax = p.cmax.clone();
+    each_part([&](int64_t t, Part& p) {
         const View v = view(t, true);
-        cmax = torch::maximum(cmax, v.contrast);
-        if (region.defined()) comax = torch::maximum(comax, v.contrast * v.own);
+        p.cmax = torch::maximum(p.cmax, v.contrast);
+        if (region.defined()) p.comax = torch::maximum(p.comax, v.contrast * v.own);
+    });
+    auto cmax = parts[0].cmax, comax = parts[0].comax;
+    for (int64_t k = 1; k < kParts; ++k)
+        cmax = torch::maximum(cmax, parts[k].cmax), comax = torch::maximum(comax, parts[k].comax);
+    for (Part& p : parts) {
+        p.wsum = torch::zeros({1, 1, Hc, Wc}), p.acc = torch::zeros({1, 3, Hc, Wc});
+        p.wsum_o = torch::zeros({1, 1, Hc, Wc}), p.acc_o = torch::zeros({1, 3, Hc, Wc});
     }
-    auto wsum = torch::zeros({1, 1, Hc, Wc}), acc = torch::zeros({1, 3, Hc, Wc});
-    auto wsum_o = torch::zeros({1, 1, Hc, Wc}), acc_o = torch::zeros({1, 3, Hc, Wc});
-    for (int64_t t = 0; t < T; ++t) {
+    each_part([&](int64_t t, Part& p) {
         const View v = view(t, false);
         auto w = (v.contrast / cmax.clamp_min(1e-12)).pow(8) * v.valid;
-        wsum += w;
-        acc += v.reg * w;
+        p.wsum += w;
+        p.acc += v.reg * w;
         if (region.defined()) {
             // The layer's own views first, weighed against the sharpest of them (against every
             // view's sharpest, a wall point seen blurred after a sharp subject stood over it
             // would count as never seen and keep no floor); where the layer is never seen,
             // every view.
             auto wo = (v.contrast * v.own / comax.clamp_min(1e-12)).pow(8) * v.valid * v.own;
-            wsum_o += wo;
-            acc_o += v.reg * wo;
+            p.wsum_o += wo;
+            p.acc_o += v.reg * wo;
         }
+    });
+    auto wsum = parts[0].wsum, acc = parts[0].acc, wsum_o = parts[0].wsum_o, acc_o = parts[0].acc_o;
+    for (int64_t k = 1; k < kParts; ++k) {
+        wsum = wsum + parts[k].wsum, acc = acc + parts[k].acc;
+        wsum_o = wsum_o + parts[k].wsum_o, acc_o = acc_o + parts[k].acc_o;
     }
     c.own_seen = ((region.defined() ? wsum_o : wsum)[0][0] > 1e-6).to(torch::kFloat32);
     if (region.defined()) {
@@ -318,21 +344,23 @@ void add_absolute_floor(const FitData& d, const LayerComposite& c, const torch::
                       100.0 * share);
         *report = line + (floor.max().item<double>() > 0 ? std::string(buf) : std::string());
     }
-    for (int64_t t = 0; t < T; ++t) {
-        auto f0 = warp_to_canvas(floor, c.to_canvas[t], H, W)[0][0].clamp_min(0);
-        auto r = torch::sqrt(out[t] * out[t] + f0 * f0);  // second moments add
-        if (spectral) {
-            // Under a floor from tile spectra the layer is never sharper than the floor, so the
-            // floor holds as a least radius where the gate closes; where it is open, the radius
-            // is the floor itself (the relative readings there are the stack's error, and added
-            // in quadrature they put frame-to-frame jitter on a static wall).
-            auto u = warp_to_canvas(ungated, c.to_canvas[t], H, W)[0][0].clamp_min(0);
-            r = torch::maximum(r, u);
-            auto g = warp_to_canvas(gate, c.to_canvas[t], H, W)[0][0].clamp(0, 1);
-            r = g * u + (1 - g) * r;
+    at::parallel_for(0, T, 1, [&](int64_t t0, int64_t t1) {
+        for (int64_t t = t0; t < t1; ++t) {
+            auto f0 = warp_to_canvas(floor, c.to_canvas[t], H, W)[0][0].clamp_min(0);
+            auto r = torch::sqrt(out[t] * out[t] + f0 * f0);  // second moments add
+            if (spectral) {
+                // Under a floor from tile spectra the layer is never sharper than the floor, so the
+                // floor holds as a least radius where the gate closes; where it is open, the radius
+                // is the floor itself (the relative readings there are the stack's error, and added
+                // in quadrature they put frame-to-frame jitter on a static wall).
+                auto u = warp_to_canvas(ungated, c.to_canvas[t], H, W)[0][0].clamp_min(0);
+                r = torch::maximum(r, u);
+                auto g = warp_to_canvas(gate, c.to_canvas[t], H, W)[0][0].clamp(0, 1);
+                r = g * u + (1 - g) * r;
+            }
+            out[t] = r.clamp(0.0, o.rmax);
         }
-        out[t] = r.clamp(0.0, o.rmax);
-    }
+    });
 }
 
 // One layer's pass. `to_ref` [T,3,3] float64 registers the layer (frame → reference);
@@ -364,10 +392,15 @@ torch::Tensor layer_radius(const FitData& d, const torch::Tensor& to_ref_in,
         for (const auto& [y, x] : crops->origin) shift.push_back(translation(double(x), double(y)));
         c.to_canvas = torch::matmul(c.to_canvas, torch::stack(shift));
     }
-    std::vector<torch::Tensor> out;
-    CompositeBlurs blurs;
-    for (int64_t t = 0; t < d.frames; ++t)
-        out.push_back(relative_radius(d, c, region, t, bank, blurs, o));
+    // Frames on the cores, each run of frames with its own blurs (a static camera's are made
+    // once a run): a frame's radius is the same whichever run reads it.
+    std::vector<torch::Tensor> out(d.frames);
+    const bool grad = torch::GradMode::is_enabled();
+    at::parallel_for(0, d.frames, 1, [&](int64_t t0, int64_t t1) {
+        torch::AutoGradMode mode(grad);
+        CompositeBlurs blurs;
+        for (int64_t t = t0; t < t1; ++t) out[t] = relative_radius(d, c, region, t, bank, blurs, o);
+    });
     ScopedTiming timing("radius: the floor");
     if (o.absolute) add_absolute_floor(d, c, region, out, o, report, fixed_share);
     return torch::stack(out).contiguous();
@@ -489,71 +522,76 @@ void split_radius_by_layer(FitData& d, int margin) {
     torch::NoGradGuard no_grad;
     const int64_t H = d.height, W = d.width;
     // Frame by frame, into clip arrays: a long clip's maps need not fit in memory.
+    // A frame a core: each frame's maps read that frame's radius and mask only.
     auto out_fg = d.clip_array(d.radius.sizes(), "radius_fg"),
          out_bg = d.clip_array(d.radius.sizes(), "radius_bg");
-    for (int64_t t = 0; t < d.frames; ++t) {
-        out_fg[t].copy_(d.radius[t]);
-        out_bg[t].copy_(d.radius[t]);
-        // Without a pixel of the subject both layers keep the visible surface's map. With one,
-        // only a box around it changes: every filter below reads at most `far` around the
-        // subject's pixels, so the box is read instead of the frame (the same values but for
-        // the fills, which a box's pyramid makes from the same neighbours).
-        const auto fg_frame = d.mask[t][0] > 0.5;  // [H,W]
-        const auto rows = fg_frame.any(1).nonzero(), cols = fg_frame.any(0).nonzero();
-        if (rows.numel() == 0) continue;
-        const int64_t y0 = rows.min().item<int64_t>(), y1 = rows.max().item<int64_t>() + 1,
-                      x0 = cols.min().item<int64_t>(), x1 = cols.max().item<int64_t>() + 1;
-        const double area = fg_frame.sum().item<double>();
-        const int k = std::max(margin, int(0.3 * std::sqrt(area / M_PI)));
-        const int reach = std::max(margin, int(std::sqrt(area / M_PI)));
-        auto box = [&](const torch::Tensor& x, int64_t g) {  // [.., H, W] → its box grown by g
-            const int64_t by0 = std::max<int64_t>(0, y0 - g), bx0 = std::max<int64_t>(0, x0 - g);
-            return x.narrow(-2, by0, std::min(H, y1 + g) - by0)
-                .narrow(-1, bx0, std::min(W, x1 + g) - bx0);
-        };
-        // The subject's radius is read where its mask is surest (its core); far from the mask
-        // its layer takes the visible surface's, so the box reaches as far as the subject's
-        // radius does.
-        const double rmax_near = box(d.radius[t], k + margin + 2).max().item<double>();
-        const int64_t g = std::max<int64_t>(reach + int64_t(std::ceil(rmax_near)) + 2, k) + 2;
-        const auto r = box(d.radius[t], g).unsqueeze(0).unsqueeze(0);  // [1,1,h,w]
-        const auto fg = box(fg_frame, g).to(torch::kFloat32).unsqueeze(0).unsqueeze(0);
-        const bool whole = r.size(2) == H && r.size(3) == W;
-        auto keep_fg = erode(fg, margin), keep_bg = erode(1.0 - fg, margin);
-        torch::Tensor fg_region;  // where the subject's radius applies (undefined: everywhere)
-        // An automatic mask is a blob around a blurred subject (wider than the silhouette by
-        // about the blur, and missing a part here and there): the map inside it holds the wall's
-        // radius at its rim, and the wall's side of it the subject's radius where it missed a
-        // part. The subject's radius is read where the mask is surest (its core) and only
-        // values near it stay the subject's; the same values next to the mask leave the wall's
-        // (docs/method.md, Layered reblur).
-        auto core = erode(fg, k);
-        if (core.sum().item<double>() < 1) core = keep_fg;
-        if (core.sum().item<double>() >= 1) {
-            const double r_core = r.masked_select(core > 0.5).median().item<double>();
-            const double tol = std::max(1.0, 0.25 * r_core);
-            auto like_subject = ((r - r_core).abs() <= tol).to(torch::kFloat32);
-            auto fg_kept = keep_fg * like_subject;
-            keep_fg = fg_kept.sum().item<double>() >= 1 ? fg_kept : core;
-            auto near = max_filter(fg, reach);
-            auto bg_kept = keep_bg * (1.0 - near * like_subject);
-            if (!whole || bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
-            // Far from the mask the subject's layer is transparent and its radius only costs
-            // time (the lens blur scatters every source pixel over its radius): there it takes
-            // the visible surface's (docs/method.md, Layered reblur).
-            const int far = reach + int(std::ceil(r_core)) + 2;
-            fg_region = max_filter(fg, far);
+    at::parallel_for(0, d.frames, 1, [&](int64_t t0, int64_t t1) {
+        for (int64_t t = t0; t < t1; ++t) {
+            out_fg[t].copy_(d.radius[t]);
+            out_bg[t].copy_(d.radius[t]);
+            // Without a pixel of the subject both layers keep the visible surface's map. With one,
+            // only a box around it changes: every filter below reads at most `far` around the
+            // subject's pixels, so the box is read instead of the frame (the same values but for
+            // the fills, which a box's pyramid makes from the same neighbours).
+            const auto fg_frame = d.mask[t][0] > 0.5;  // [H,W]
+            const auto rows = fg_frame.any(1).nonzero(), cols = fg_frame.any(0).nonzero();
+            if (rows.numel() == 0) continue;
+            const int64_t y0 = rows.min().item<int64_t>(), y1 = rows.max().item<int64_t>() + 1,
+                          x0 = cols.min().item<int64_t>(), x1 = cols.max().item<int64_t>() + 1;
+            const double area = fg_frame.sum().item<double>();
+            const int k = std::max(margin, int(0.3 * std::sqrt(area / M_PI)));
+            const int reach = std::max(margin, int(std::sqrt(area / M_PI)));
+            auto box = [&](const torch::Tensor& x, int64_t g) {  // [.., H, W] → its box grown by g
+                const int64_t by0 = std::max<int64_t>(0, y0 - g),
+                              bx0 = std::max<int64_t>(0, x0 - g);
+                return x.narrow(-2, by0, std::min(H, y1 + g) - by0)
+                    .narrow(-1, bx0, std::min(W, x1 + g) - bx0);
+            };
+            // The subject's radius is read where its mask is surest (its core); far from the mask
+            // its layer takes the visible surface's, so the box reaches as far as the subject's
+            // radius does.
+            const double rmax_near = box(d.radius[t], k + margin + 2).max().item<double>();
+            const int64_t g = std::max<int64_t>(reach + int64_t(std::ceil(rmax_near)) + 2, k) + 2;
+            const auto r = box(d.radius[t], g).unsqueeze(0).unsqueeze(0);  // [1,1,h,w]
+            const auto fg = box(fg_frame, g).to(torch::kFloat32).unsqueeze(0).unsqueeze(0);
+            const bool whole = r.size(2) == H && r.size(3) == W;
+            auto keep_fg = erode(fg, margin), keep_bg = erode(1.0 - fg, margin);
+            torch::Tensor fg_region;  // where the subject's radius applies (undefined: everywhere)
+            // An automatic mask is a blob around a blurred subject (wider than the silhouette by
+            // about the blur, and missing a part here and there): the map inside it holds the
+            // wall's radius at its rim, and the wall's side of it the subject's radius where it
+            // missed a part. The subject's radius is read where the mask is surest (its core) and
+            // only values near it stay the subject's; the same values next to the mask leave the
+            // wall's (docs/method.md, Layered reblur).
+            auto core = erode(fg, k);
+            if (core.sum().item<double>() < 1) core = keep_fg;
+            if (core.sum().item<double>() >= 1) {
+                const double r_core = r.masked_select(core > 0.5).median().item<double>();
+                const double tol = std::max(1.0, 0.25 * r_core);
+                auto like_subject = ((r - r_core).abs() <= tol).to(torch::kFloat32);
+                auto fg_kept = keep_fg * like_subject;
+                keep_fg = fg_kept.sum().item<double>() >= 1 ? fg_kept : core;
+                auto near = max_filter(fg, reach);
+                auto bg_kept = keep_bg * (1.0 - near * like_subject);
+                if (!whole || bg_kept.sum().item<double>() >= 1) keep_bg = bg_kept;
+                // Far from the mask the subject's layer is transparent and its radius only costs
+                // time (the lens blur scatters every source pixel over its radius): there it takes
+                // the visible surface's (docs/method.md, Layered reblur).
+                const int far = reach + int(std::ceil(r_core)) + 2;
+                fg_region = max_filter(fg, far);
+            }
+            // A layer without a sure pixel keeps the visible surface's map.
+            auto one = [&](const torch::Tensor& sure) {
+                return sure.sum().item<double>() > 0 ? fill_from(r, sure)[0][0] : r[0][0];
+            };
+            box(out_fg[t], g)
+                .copy_(fg_region.defined()
+                           ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), r[0][0])
+                           : one(keep_fg));
+            // Outside the box the wall's layer is sure everywhere (a fill keeps what it is given).
+            box(out_bg[t], g).copy_(one(keep_bg));
         }
-        // A layer without a sure pixel keeps the visible surface's map.
-        auto one = [&](const torch::Tensor& sure) {
-            return sure.sum().item<double>() > 0 ? fill_from(r, sure)[0][0] : r[0][0];
-        };
-        box(out_fg[t], g)
-            .copy_(fg_region.defined() ? torch::where(fg_region[0][0] > 0.5, one(keep_fg), r[0][0])
-                                       : one(keep_fg));
-        // Outside the box the wall's layer is sure everywhere (a fill keeps what it is given).
-        box(out_bg[t], g).copy_(one(keep_bg));
-    }
+    });
     d.radius_fg = out_fg;
     d.radius_bg = out_bg;
 }
