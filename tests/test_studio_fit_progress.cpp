@@ -55,9 +55,12 @@ TEST_CASE("preparation steps: named, in order, spanning [0, 1]") {
         if (i > 0) CHECK(steps[i].begin >= steps[i - 1].end - 1e-9);  // in order, no overlap
     }
     INFO(nlohmann::json(names).dump());
-    for (const char* want : {"reading the frames", "optical flow", "camera motion", "subject masks",
-                             "circle of confusion", "radius maps"})
+    for (const char* want :
+         {"reading the frames", "optical flow", "camera motion", "subject masks", "radius maps"})
         CHECK(std::find(names.begin(), names.end(), want) != names.end());
+    // The per-frame radius is a stage only where it is the fit's source (not before a focal
+    // stack, as here).
+    CHECK(std::find(names.begin(), names.end(), "circle of confusion") == names.end());
 }
 
 TEST_CASE("fit worker: preparation progress while preparing, and inside the minutes budget") {

@@ -179,9 +179,9 @@ PrepareResult prepare_clip(const std::vector<Image>& frames, const PrepareOption
     }
 
     // 4. Circle of confusion.
-    log.stage("circle of confusion", 0.9, 1.0);
     res.decisions.frame_sharp.assign(n, 0);
     if (opts.estimate_coc) {
+        log.stage("circle of confusion", 0.9, 1.0);
         t0 = std::chrono::steady_clock::now();
         for (const auto& f : frames) res.coc.push_back(estimate_coc(f, opts.coc));
         if (opts.temporal_coc && n > 1) res.coc = smooth_coc_temporally(res.coc, res.flow);
