@@ -7,6 +7,7 @@
 #include "ops/morphology.h"
 #include "util/debug.h"
 #include "util/error.h"
+#include "util/threads.h"
 
 #include <opencv2/imgproc.hpp>
 
@@ -331,13 +332,12 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
                     .mode(torch::kBilinear)
                     .padding_mode(torch::kZeros)
                     .align_corners(false);
-    // The frames in two interleaved sums (t even, t odd), one a core: LibTorch's samplers run a
-    // single image on one thread. Two sums whatever the thread count, so the result is the same
-    // on any machine.
+    // The frames in two interleaved sums (t even, t odd), one a core (for_each_in_parts): the
+    // same result on any machine.
     struct Sum {
         torch::Tensor acc, wsum, ones, scale;
     };
-    constexpr int64_t kSums = 2;
+    constexpr int kSums = 2;
     Sum sums[kSums];
     auto add_frame = [&](int64_t t, Sum& sum) {
         // The whole atlas, or the frame's window of it.
@@ -410,12 +410,7 @@ torch::Tensor fuse_frames(const torch::Tensor& to_atlas, int64_t height, int64_t
         acc.narrow(1, box.y0, box.h).narrow(2, box.x0, box.w) += col * w;
         wsum.narrow(1, box.y0, box.h).narrow(2, box.x0, box.w) += w;
     };
-    const bool grad = torch::GradMode::is_enabled();  // thread-local: the workers take the caller's
-    at::parallel_for(0, kSums, 1, [&](int64_t c0, int64_t c1) {
-        torch::AutoGradMode mode(grad);
-        for (int64_t c = c0; c < c1; ++c)
-            for (int64_t t = c; t < T; t += kSums) add_frame(t, sums[c]);
-    });
+    for_each_in_parts(T, kSums, [&](int64_t t, int p) { add_frame(t, sums[p]); });
     torch::Tensor acc, wsum;
     for (const Sum& sum : sums) {
         if (!sum.acc.defined()) continue;

@@ -18,6 +18,7 @@
 #include "prepare/coc.h"
 #include "radius/stack_costs.h"
 #include "radius/stack_floor.h"
+#include "util/threads.h"
 #include "util/timing.h"
 
 namespace refocus {
@@ -106,20 +107,16 @@ LayerComposite layer_composite(const FitData& d, const torch::Tensor& to_ref_in,
                         .to(torch::kFloat32);
         return v;
     };
-    // Each pass over the frames in two interleaved parts (t even, t odd), one a core (LibTorch's
-    // sampler runs one image on one thread); two parts whatever the thread count, so the sums
-    // are the same on any machine.
-    constexpr int64_t kParts = 2;
+    // Each pass over the frames in two interleaved parts (t even, t odd), one a core
+    // (for_each_in_parts): the same sums on any machine.
+    constexpr int kParts = 2;
     c.reg_valid.resize(T);
     struct Part {
         torch::Tensor cmax, comax, wsum, acc, wsum_o, acc_o;
     };
     Part parts[kParts];
     auto each_part = [&](const std::function<void(int64_t t, Part&)>& fn) {
-        at::parallel_for(0, kParts, 1, [&](int64_t p0, int64_t p1) {
-            for (int64_t p = p0; p < p1; ++p)
-                for (int64_t t = p; t < T; t += kParts) fn(t, parts[p]);
-        });
+        for_each_in_parts(T, kParts, [&](int64_t t, int p) { fn(t, parts[p]); });
     };
     for (Part& p : parts) p.cmax = torch::zeros({1, 1, Hc, Wc}), p.comax = p.cmax.clone();
     each_part([&](int64_t t, Part& p) {

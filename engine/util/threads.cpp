@@ -1,6 +1,7 @@
 #include "util/threads.h"
 
 #include <ATen/Parallel.h>
+#include <c10/core/GradMode.h>
 #include <omp.h>
 #include <opencv2/core.hpp>
 
@@ -68,6 +69,15 @@ void for_each_on_threads(int n, int threads, const std::function<void(int, int)>
     run(0);
     for (auto& t : pool) t.join();
     if (failed) std::rethrow_exception(failed);
+}
+
+void for_each_in_parts(int64_t n, int parts, const std::function<void(int64_t i, int p)>& fn) {
+    const bool grad = c10::GradMode::is_enabled();  // thread-local: the workers take the caller's
+    at::parallel_for(0, parts, 1, [&](int64_t p0, int64_t p1) {
+        c10::AutoGradMode mode(grad);
+        for (int64_t p = p0; p < p1; ++p)
+            for (int64_t i = p; i < n; i += parts) fn(i, int(p));
+    });
 }
 
 }  // namespace refocus

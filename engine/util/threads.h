@@ -1,4 +1,5 @@
 #pragma once
+#include <cstdint>
 #include <functional>
 #include <string>
 
@@ -14,4 +15,9 @@ int threads_from_env(const char* env, int cores, std::string* warning);
 // optical flow with its own estimator). The first exception is rethrown once all have stopped.
 // threads ≤ 0: LibTorch's thread count (init_threads).
 void for_each_on_threads(int n, int threads, const std::function<void(int i, int k)>& fn);
+// Runs fn(i, p) for every i in [0, n), part p taking i ≡ p mod `parts`, each part on one of
+// LibTorch's threads (at::parallel_for) with the caller's grad mode: sums kept per part and
+// added in part order are the same whatever the thread count (LibTorch's CPU sampler runs one
+// image on one thread, so frames summed this way use the cores).
+void for_each_in_parts(int64_t n, int parts, const std::function<void(int64_t i, int p)>& fn);
 }  // namespace refocus
