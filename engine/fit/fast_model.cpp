@@ -650,6 +650,10 @@ void FastModel::adopt_geometry(Atlas& a, const std::string& name,
                 0.5 *
                 std::sqrt(double(m_data.width * m_data.width + m_data.height * m_data.height)) *
                 a.scale;
+        } else if (a.parallax.defined() && m_opts.restore_only) {  // the fit kept no field
+            a.parallax = torch::Tensor();
+            a.epipole = torch::Tensor();
+            a.centre = torch::Tensor();
         } else if (a.parallax.defined()) {  // fitted without: γ = 0 renders as it did
             s[name + "_parallax"] = torch::zeros_like(a.parallax);
             s[name + "_epipole"] = a.epipole.detach().clone();

@@ -54,19 +54,41 @@ std::string FastModel::make_parallax(Atlas& a,
                       (long long)gw, (long long)gh, n, (forward.min().item<double>() + 1),
                       (forward.max().item<double>() + 1));
     // γ and the epipoles from the flow: a learned γ starts at 0, where a few pixels of parallax
-    // are already past what the photometric gradient sees.
-    if (m_data.flow_fwd.defined() && m_data.flow_valid.defined() && region) {
-        const auto init =
-            parallax_from_flow(a.to_atlas, m_data.flow_fwd, m_data.flow_valid, region, a.epipole,
-                               a.centre, a.parallax_radius, a.width, a.height, gh, gw);
-        if (init.points > 0 && init.after_px < init.before_px) {
-            a.parallax = init.parallax;
-            a.epipole = init.epipole;
-            std::snprintf(line + len, sizeof line - len,
-                          ": from the flow (%lld correspondences), frames disagree by %.2f px "
-                          "through the homographies, %.2f px with it",
-                          (long long)init.points, init.before_px, init.after_px);
-        }
+    // are already past what the photometric gradient sees. Restoring (no region), the checkpoint
+    // says whether the fit kept the field (load_state).
+    if (!region) return line;
+    ParallaxInit init;
+    if (m_data.flow_fwd.defined() && m_data.flow_valid.defined())
+        init = parallax_from_flow(a.to_atlas, m_data.flow_fwd, m_data.flow_valid, region,
+                                  a.epipole, a.centre, a.parallax_radius, a.width, a.height, gh,
+                                  gw);
+    const double held = init.held_before_px > 0 ? 1 - init.held_after_px / init.held_before_px
+                                                : std::nan("");
+    if (m_opts.parallax_evidence > 0 && !(held >= m_opts.parallax_evidence)) {
+        a.parallax = torch::Tensor();
+        a.epipole = torch::Tensor();
+        a.centre = torch::Tensor();
+        std::string why = "too few frame pairs of flow to test a depth field";
+        if (std::isfinite(held))
+            why = "fitted to half the frame pairs, the flow's field predicts the other half " +
+                  std::to_string(std::lround(100 * std::abs(held))) +
+                  (held < 0 ? "% worse" : "% better") + " (" +
+                  std::to_string(std::lround(100 * m_opts.parallax_evidence)) +
+                  "% needed): no depth the pairs share";
+        std::snprintf(line, sizeof line,
+                      "fit (fast): no plane + parallax on the background (the view travels up to "
+                      "%.1f px): %s",
+                      n, why.c_str());
+        return line;
+    }
+    if (init.points > 0 && init.after_px < init.before_px) {
+        a.parallax = init.parallax;
+        a.epipole = init.epipole;
+        std::snprintf(line + len, sizeof line - len,
+                      ": from the flow (%lld correspondences), frames disagree by %.2f px "
+                      "through the homographies, %.2f px with it; half the pairs predict the "
+                      "other half %.0f%% better",
+                      (long long)init.points, init.before_px, init.after_px, 100 * held);
     }
     return line;
 }

@@ -166,10 +166,13 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
                           .padding_mode(torch::kBorder)
                           .align_corners(false);
     // h_t(p) − h_{t+1}(q) = γ(u)·(d_{t+1}(u) − d_t(u)), d_t(u) = a_t + b_t·(u − c_t)/R.
-    auto disagreement = [&](bool robust) {
+    // parity: every pair (−1), or the pairs whose t is even (0) or odd (1).
+    auto disagreement = [&](bool robust, int parity) {
         torch::Tensor sum = torch::zeros({});
+        int64_t n = 0;
         for (size_t i = 0; i < pairs.size(); ++i) {
             const auto& pr = pairs[i];
+            if (parity >= 0 && pr.t % 2 != parity) continue;
             auto gam = F::grid_sample(g, grid[i], opts).view({-1, 1});  // [n,1]
             auto dir = [&](int64_t t) {
                 return e[t].narrow(0, 0, 2).view({1, 2}) + e[t].narrow(0, 2, 1).view({1, 1}) *
@@ -179,28 +182,43 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
             auto r = pr.d - gam * (dir(pr.t + 1) - dir(pr.t));
             auto n2 = r.pow(2).sum(1);
             sum = sum + (robust ? (n2 + eps2).sqrt() : n2.sqrt()).sum();
+            n += pr.p.size(0);
         }
-        return sum / double(res.points);
+        return sum / double(std::max<int64_t>(1, n));
+    };
+    torch::optim::Adam opt_g({g}, torch::optim::AdamOptions(0.3));
+    torch::optim::Adam opt_e({e}, torch::optim::AdamOptions(0.0));
+    auto fit = [&](int parity, int steps) {
+        for (int i = 0; i < steps; ++i) {
+            opt_g.zero_grad();
+            opt_e.zero_grad();
+            auto dx = g.narrow(3, 1, gw - 1) - g.narrow(3, 0, gw - 1);
+            auto dy = g.narrow(2, 1, gh - 1) - g.narrow(2, 0, gh - 1);
+            auto loss = disagreement(true, parity) +
+                        smooth * (dx.pow(2).mean() + dy.pow(2).mean()) + size * g.pow(2).mean();
+            loss.backward();
+            opt_g.step();
+            opt_e.step();
+        }
     };
     {
         torch::NoGradGuard no_grad;
-        res.before_px = disagreement(false).item<double>();
+        res.before_px = disagreement(false, -1).item<double>();
     }
-    torch::optim::Adam opt_g({g}, torch::optim::AdamOptions(0.3));
-    torch::optim::Adam opt_e({e}, torch::optim::AdamOptions(0.0));
-    for (int i = 0; i < iters; ++i) {
-        opt_g.zero_grad();
-        opt_e.zero_grad();
-        auto dx = g.narrow(3, 1, gw - 1) - g.narrow(3, 0, gw - 1);
-        auto dy = g.narrow(2, 1, gh - 1) - g.narrow(2, 0, gh - 1);
-        auto loss = disagreement(true) + smooth * (dx.pow(2).mean() + dy.pow(2).mean()) +
-                    size * g.pow(2).mean();
-        loss.backward();
-        opt_g.step();
-        opt_e.step();
+    int even = 0, odd = 0;
+    for (const auto& pr : pairs) (pr.t % 2 ? odd : even) += 1;
+    if (even >= 2 && odd >= 2) {  // held out: fitted to the even pairs, scored on the odd
+        {
+            torch::NoGradGuard no_grad;
+            res.held_before_px = disagreement(false, 1).item<double>();
+        }
+        fit(0, iters / 2);
+        torch::NoGradGuard no_grad;
+        res.held_after_px = disagreement(false, 1).item<double>();
     }
+    fit(-1, iters);
     torch::NoGradGuard done;
-    res.after_px = disagreement(false).item<double>();
+    res.after_px = disagreement(false, -1).item<double>();
     res.parallax = g.detach().clone();
     res.epipole = e.detach().clone();
     return res;

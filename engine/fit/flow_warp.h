@@ -7,6 +7,7 @@
 // reach.
 #include <torch/types.h>
 
+#include <cmath>
 #include <functional>
 #include <string>
 
@@ -37,6 +38,11 @@ struct ParallaxInit {
     torch::Tensor epipole;   // [T,3] refined
     double before_px = 0;    // mean disagreement of the flow's correspondences, γ = 0
     double after_px = 0;     // ... with γ and the epipoles
+    // The same on the odd frame pairs (t → t+1, t odd) before and after a field fitted to the even
+    // pairs alone: what the field predicts of pairs it was not fitted to. Scene depth is shared by
+    // every pair; the flow's own errors are not. NaN with fewer than two pairs of each kind.
+    double held_before_px = std::nan("");
+    double held_after_px = std::nan("");
     int64_t points = 0;
 };
 
@@ -44,7 +50,9 @@ struct ParallaxInit {
 // same correspondences as warps_from_flow
 //     Σ ρ(|h_t(p) − h_{t+1}(p + f) − γ(u)·(d_{t+1}(u) − d_t(u))|) + λ Σ |∇γ|² + μ Σ γ²,
 // u = h_t(p), d_t(u) = a_t + b_t·(u − c_t)/R, from `epipole` [T,3] (a_x, a_y, b) and `centre`
-// [T,2] (atlas px). One γ for the clip: the correspondences of every pair constrain it.
+// [T,2] (atlas px). One γ for the clip: the correspondences of every pair constrain it. With four
+// pairs or more γ is first fitted to the even pairs alone and scored on the odd ones
+// (held_before_px / held_after_px), then fitted on from there to every pair.
 ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tensor& flow,
                                 const torch::Tensor& valid,
                                 const std::function<torch::Tensor(int64_t)>& region,
