@@ -124,7 +124,7 @@ namespace {
 // automatic masks are incoherent and the subject would join the wall's layer), plane + parallax
 // on or off.
 test::TinyClip fit_plate(const std::string& name, const std::string& scene, bool parallax,
-                         int iters) {
+                         int iters, std::string* log = nullptr) {
     test::TinyClip c = test::make_tiny(name, scene, scene == "pillar" ? "160x90" : "64x36");
     auto r = test::run(std::string("REFOCUS_THREADS=1 '") + REFOCUS_CLI + "' fit '" +
                        c.project.string() + "' --iters " + std::to_string(iters) +
@@ -134,6 +134,7 @@ test::TinyClip fit_plate(const std::string& name, const std::string& scene, bool
                        "' --mask '" + (c.clip / "alpha_%04d.png").string() + "'");
     INFO(r.output);
     REQUIRE(r.code == 0);
+    if (log) *log = r.output;
     return c;
 }
 
@@ -167,7 +168,10 @@ PillarScore score_pillar(const test::TinyClip& c, const std::vector<Image>& shar
 }  // namespace
 
 TEST_CASE("plane + parallax: the plate beats the wall's input and γ sets the pillar before it") {
-    const test::TinyClip c = fit_plate("plane_parallax_pillar", "pillar", true, 120);
+    std::string log;
+    const test::TinyClip c = fit_plate("plane_parallax_pillar", "pillar", true, 120, &log);
+    // The pillar's depth is every frame pair's: the field is kept (fast.parallax_evidence).
+    CHECK(log.find("half the pairs predict the other half") != std::string::npos);
     const test::TinyClip off = fit_plate("plane_parallax_pillar_off", "pillar", false, 120);
     const PillarScore on_s = score_pillar(c, test::export_sharp(c, "sharp"));
     const PillarScore off_s = score_pillar(off, test::export_sharp(off, "sharp"));
@@ -224,3 +228,4 @@ TEST_CASE("plane + parallax: a static camera's fit is bit-identical with it on o
     CHECK(r.code != 0);
     CHECK(r.output.find("no parallax field") != std::string::npos);
 }
+
