@@ -34,11 +34,12 @@ struct FastModelOptions {
     // (relative inverse depth, a value per cell of `parallax_cell_px` frame px), (a_t, b_t) the
     // frame's epipole (lateral and forward translation, 3 numbers), c_t the frame's centre in the
     // atlas, R its half diagonal. Off, or on a static camera: the homography and warp alone.
-    bool parallax = false;
+    bool parallax = true;
     // ... kept only where the field the flow gives, fitted to the even frame pairs, lowers the odd
     // pairs' disagreement by this share (0: kept whenever the camera moves): depth that every
     // pair shares, not the flow's own errors (flow_warp.h, ParallaxInit).
     double parallax_evidence = 0.02;
+    double parallax_travel_px = 8;  // ... and where the view travels this far (frame px)
     int parallax_cell_px = 8;
     double lr_parallax = 0.05;  // γ, px per step at the frame of largest camera motion
     double lr_epipole = 0.002;  // (a_t, b_t), normalised to at most 1 over the clip

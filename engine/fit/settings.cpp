@@ -158,6 +158,8 @@ const std::vector<Field<FastModelOptions>>& fast_fields() {
         {"fast.parallax_evidence", &O::parallax_evidence, 0, 1,
          "... where the field fitted to half the frame pairs predicts the other half's flow "
          "better by this share (0: whenever the camera moves)"},
+        {"fast.parallax_travel_px", &O::parallax_travel_px, 0, 1e5,
+         "... where the view travels at least this far over the clip (frame px)"},
         {"fast.parallax_cell_px", &O::parallax_cell_px, 2, 1024, "... on a grid this fine (px)"},
         {"fast.lr_parallax", &O::lr_parallax, 0, 100, "... its learning rate (px per step)"},
         {"fast.lr_epipole", &O::lr_epipole, 0, 100, "... the epipoles' learning rate"},
