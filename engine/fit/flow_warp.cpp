@@ -135,7 +135,7 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
                                 const std::function<torch::Tensor(int64_t)>& region,
                                 const torch::Tensor& epipole, const torch::Tensor& centre,
                                 double radius, int64_t atlas_w, int64_t atlas_h, int64_t gh,
-                                int64_t gw, int iters, int stride) {
+                                int64_t gw, double min_held_gain, int iters, int stride) {
     const int64_t T = to_atlas.size(0);
     ParallaxInit res;
     res.parallax = torch::zeros({1, 1, gh, gw});
@@ -216,6 +216,8 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
         torch::NoGradGuard no_grad;
         res.held_after_px = disagreement(false, 1).item<double>();
     }
+    if (min_held_gain > 0 && !(res.held_after_px <= (1 - min_held_gain) * res.held_before_px))
+        return res;  // refused (or not scored): the caller keeps no field, so fit no further
     fit(-1, iters);
     torch::NoGradGuard done;
     res.after_px = disagreement(false, -1).item<double>();

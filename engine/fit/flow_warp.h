@@ -52,12 +52,15 @@ struct ParallaxInit {
 // u = h_t(p), d_t(u) = a_t + b_t·(u − c_t)/R, from `epipole` [T,3] (a_x, a_y, b) and `centre`
 // [T,2] (atlas px). One γ for the clip: the correspondences of every pair constrain it. With four
 // pairs or more γ is first fitted to the even pairs alone and scored on the odd ones
-// (held_before_px / held_after_px), then fitted on from there to every pair.
+// (held_before_px / held_after_px), then fitted on from there to every pair, unless the odd
+// pairs gained less than the share `min_held_gain` (> 0) or could not be scored: then γ stays
+// zero and after_px is not computed (the caller keeps no field).
 ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tensor& flow,
                                 const torch::Tensor& valid,
                                 const std::function<torch::Tensor(int64_t)>& region,
                                 const torch::Tensor& epipole, const torch::Tensor& centre,
                                 double radius, int64_t atlas_w, int64_t atlas_h, int64_t gh,
-                                int64_t gw, int iters = 150, int stride = 4);
+                                int64_t gw, double min_held_gain = 0, int iters = 150,
+                                int stride = 4);
 
 }  // namespace refocus
