@@ -127,7 +127,10 @@ ParallaxInit parallax_of(const Parallax& c) {
     const double radius = 0.5 * std::hypot(double(c.W), double(c.H));
     const int64_t aw = c.W + 2 * (T - 1), ah = c.H;
     return parallax_from_flow(
-        c.to_atlas, c.flow, c.valid, [&](int64_t) { return torch::ones({1, c.H, c.W}); },
+        c.to_atlas, c.flow, c.valid,
+        [&](int64_t) {
+            return torch::ones({1, c.H, c.W});
+        },
         epipole, centre, radius, aw, ah, ah / 4 + 2, aw / 4 + 2);
 }
 
@@ -148,10 +151,10 @@ TEST_CASE("plane + parallax: the flow's own errors, differing pair by pair, pred
     c.flow.select(1, 0).fill_(-2.0);
     torch::manual_seed(7);
     auto err = torch::randn({c.T - 1, 2, c.H / 4, c.W / 4}) * 0.3;
-    c.flow += torch::nn::functional::interpolate(
-        err, torch::nn::functional::InterpolateFuncOptions()
-                 .size(std::vector<int64_t>{c.H, c.W})
-                 .mode(torch::kNearest));
+    c.flow +=
+        torch::nn::functional::interpolate(err, torch::nn::functional::InterpolateFuncOptions()
+                                                    .size(std::vector<int64_t>{c.H, c.W})
+                                                    .mode(torch::kNearest));
     const ParallaxInit r = parallax_of(c);
     REQUIRE(std::isfinite(r.held_before_px));
     MESSAGE("held out " << r.held_before_px << " -> " << r.held_after_px << " px");

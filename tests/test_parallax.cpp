@@ -228,4 +228,3 @@ TEST_CASE("plane + parallax: a static camera's fit is bit-identical with it on o
     CHECK(r.code != 0);
     CHECK(r.output.find("no parallax field") != std::string::npos);
 }
-

@@ -70,11 +70,11 @@ std::string FastModel::make_parallax(Atlas& a,
     if (!region) return line;
     ParallaxInit init;
     if (m_data.flow_fwd.defined() && m_data.flow_valid.defined())
-        init = parallax_from_flow(a.to_atlas, m_data.flow_fwd, m_data.flow_valid, region,
-                                  a.epipole, a.centre, a.parallax_radius, a.width, a.height, gh,
-                                  gw, m_opts.parallax_evidence);
-    const double held = init.held_before_px > 0 ? 1 - init.held_after_px / init.held_before_px
-                                                : std::nan("");
+        init = parallax_from_flow(a.to_atlas, m_data.flow_fwd, m_data.flow_valid, region, a.epipole,
+                                  a.centre, a.parallax_radius, a.width, a.height, gh, gw,
+                                  m_opts.parallax_evidence);
+    const double held =
+        init.held_before_px > 0 ? 1 - init.held_after_px / init.held_before_px : std::nan("");
     if (m_opts.parallax_evidence > 0 && !(held >= m_opts.parallax_evidence)) {
         a.parallax = torch::Tensor();
         a.epipole = torch::Tensor();
