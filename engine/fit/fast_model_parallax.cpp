@@ -73,8 +73,7 @@ std::string FastModel::make_parallax(Atlas& a,
         init = parallax_from_flow(a.to_atlas, m_data.flow_fwd, m_data.flow_valid, region, a.epipole,
                                   a.centre, a.parallax_radius, a.width, a.height, gh, gw,
                                   m_opts.parallax_evidence);
-    const double held =
-        init.held_before_px > 0 ? 1 - init.held_after_px / init.held_before_px : std::nan("");
+    const double held = init.held_gain();
     if (m_opts.parallax_evidence > 0 && !(held >= m_opts.parallax_evidence)) {
         a.parallax = torch::Tensor();
         a.epipole = torch::Tensor();

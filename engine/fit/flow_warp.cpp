@@ -216,7 +216,7 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
         torch::NoGradGuard no_grad;
         res.held_after_px = disagreement(false, 1).item<double>();
     }
-    if (min_held_gain > 0 && !(res.held_after_px <= (1 - min_held_gain) * res.held_before_px))
+    if (min_held_gain > 0 && !(res.held_gain() >= min_held_gain))
         return res;  // refused (or not scored): the caller keeps no field, so fit no further
     fit(-1, iters);
     torch::NoGradGuard done;

@@ -44,6 +44,10 @@ struct ParallaxInit {
     double held_before_px = std::nan("");
     double held_after_px = std::nan("");
     int64_t points = 0;
+    // The share of the odd pairs' disagreement the even pairs' field removes (NaN: not scored).
+    double held_gain() const {
+        return held_before_px > 0 ? 1 - held_after_px / held_before_px : std::nan("");
+    }
 };
 
 // Plane + parallax (fast_model.h) started from the flow: γ and the epipoles minimising over the
