@@ -194,7 +194,7 @@ FastModel::FastModel(const FitData& d, const FastModelOptions& opts) : m_data(d)
         }
         if (!locked) {
             refine_alignment(m_bg, bg_weight, shrunk_once(bg_weight), bg_region,
-                             d.static_camera ? 2.0 : 4.0, d.static_camera);
+                             d.static_camera ? 2.0 : m_opts.align_max_px, d.static_camera);
             if (d.static_camera && still()) m_bg.to_atlas = before;
         }
     }

@@ -41,9 +41,10 @@ struct FastModelOptions {
     double parallax_evidence = 0.02;
     double parallax_travel_px = 8;  // ... and where the view travels this far (frame px)
     int parallax_cell_px = 8;
-    double lr_parallax = 0.05;  // γ, px per step at the frame of largest camera motion
-    double lr_epipole = 0.002;  // (a_t, b_t), normalised to at most 1 over the clip
-    double w_parallax = 0.005;  // γ smoothness
+    bool parallax_homography = false;  // ... and each frame's homography corrected with it
+    double lr_parallax = 0.05;         // γ, px per step at the frame of largest camera motion
+    double lr_epipole = 0.002;         // (a_t, b_t), normalised to at most 1 over the clip
+    double w_parallax = 0.005;         // γ smoothness
     double lr_atlas = 0.01;
     double lr_warp = 0.05;  // px per step (Adam)
     double lr_alpha = 0.05;
@@ -67,6 +68,8 @@ struct FastModelOptions {
     double alpha_shared_lr = 1.0;    // the shared matte's learning rate, times lr_alpha
     int align_rounds = 2;            // ECC refinement rounds at initialisation (0: off)
     int align_width = 640;           // ... on frames shrunk to at most this wide (0: full size)
+    bool align_affine = false;       // a moving camera's ECC corrects an affine map, not a shift
+    double align_max_px = 4;         // ... and no corner of a moving camera's frame moves this far
     bool static_align = true;        // ... also on a camera judged static (hand shake)
     double atlas_scale = 1;          // atlas px per frame px (FitData::atlas_scale); TV and the
                                      // residual warps stay in frame px

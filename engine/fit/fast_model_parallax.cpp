@@ -72,7 +72,7 @@ std::string FastModel::make_parallax(Atlas& a,
     if (m_data.flow_fwd.defined() && m_data.flow_valid.defined())
         init = parallax_from_flow(a.to_atlas, m_data.flow_fwd, m_data.flow_valid, region, a.epipole,
                                   a.centre, a.parallax_radius, a.width, a.height, gh, gw,
-                                  m_opts.parallax_evidence);
+                                  m_opts.parallax_evidence, 150, 4, m_opts.parallax_homography);
     const double held = init.held_gain();
     if (m_opts.parallax_evidence > 0 && !(held >= m_opts.parallax_evidence)) {
         a.parallax = torch::Tensor();
@@ -96,6 +96,9 @@ std::string FastModel::make_parallax(Atlas& a,
     if (init.points > 0 && init.after_px < init.before_px) {
         a.parallax = init.parallax;
         a.epipole = init.epipole;
+        if (init.correction.defined())
+            a.to_atlas =
+                torch::matmul(init.correction, a.to_atlas.to(torch::kFloat64)).to(torch::kFloat32);
         std::snprintf(line + len, sizeof line - len,
                       ": from the flow (%lld correspondences), frames disagree by %.2f px "
                       "through the homographies, %.2f px with it; half the pairs predict the "

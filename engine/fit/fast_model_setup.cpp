@@ -91,23 +91,27 @@ torch::Tensor fuse_on_proxy(const torch::Tensor& to_atlas, int64_t Ha, int64_t W
 // something in one frame only, a flash or a passer-by, is not hand shake).
 torch::Tensor ecc_translation(const cv::Mat& tmpl, const cv::Mat& moving, const cv::Mat& mask,
                               int64_t k, int64_t W, int64_t H, double max_shift, bool static_camera,
-                              int round, int64_t t) {
-    // Translation only: the homography's shape is right, its drift is what accumulates; more
-    // degrees of freedom let ECC wander on heavily blurred frames.
+                              int round, int64_t t, bool affine) {
+    // Translation by default: more degrees of freedom let ECC wander on heavily blurred frames.
     cv::Mat warp = cv::Mat::eye(2, 3, CV_32F);
     bool ok = true;
     try {
         cv::findTransformECC(
-            tmpl, moving, warp, cv::MOTION_TRANSLATION,
+            tmpl, moving, warp, affine ? cv::MOTION_AFFINE : cv::MOTION_TRANSLATION,
             cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 60, 1e-5), mask, 5);
     } catch (const cv::Exception&) {
         ok = false;  // no convergence: keep the mapping
     }
-    // The proxy's translation in frame px: k times (the block centres' offset cancels).
+    // The proxy's map in frame px: x = k·x_p + c with c = (k − 1)/2, so the linear part A stays
+    // and the shift b becomes k·b + (I − A)·c (c cancels for a translation).
     auto wf = torch::eye(3, torch::kFloat64);
-    for (int r = 0; r < warp.rows; ++r)
-        for (int c = 0; c < 3; ++c)
-            wf[r][c] = double(warp.at<float>(r, c)) * (c == 2 ? double(k) : 1.0);
+    const double c0 = (k - 1) / 2.0;
+    for (int r = 0; r < warp.rows; ++r) {
+        for (int c = 0; c < 2; ++c) wf[r][c] = double(warp.at<float>(r, c));
+        wf[r][2] = double(warp.at<float>(r, 2)) * double(k) +
+                   (1.0 - double(warp.at<float>(r, r))) * c0 -
+                   double(warp.at<float>(r, 1 - r)) * c0;
+    }
     double worst = 0;
     for (double cy : {0.0, double(H - 1)})
         for (double cx : {0.0, double(W - 1)}) {
@@ -357,8 +361,9 @@ void FastModel::refine_alignment(Atlas& a, const FrameFn& weight, const FrameFn&
                 tmpl = grey(crop(input_p(t))), moving = grey(blurred);
             }
             ScopedTiming timing("align: ECC");
-            mats.push_back(torch::matmul(m, ecc_translation(tmpl, moving, mask, k, W, H, max_shift,
-                                                            static_camera, round, t)));
+            mats.push_back(torch::matmul(
+                m, ecc_translation(tmpl, moving, mask, k, W, H, max_shift, static_camera, round, t,
+                                   m_opts.align_affine && !static_camera)));
         }
         a.to_atlas = torch::stack(mats).to(torch::kFloat32);
     }

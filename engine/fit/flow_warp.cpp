@@ -135,7 +135,8 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
                                 const std::function<torch::Tensor(int64_t)>& region,
                                 const torch::Tensor& epipole, const torch::Tensor& centre,
                                 double radius, int64_t atlas_w, int64_t atlas_h, int64_t gh,
-                                int64_t gw, double min_held_gain, int iters, int stride) {
+                                int64_t gw, double min_held_gain, int iters, int stride,
+                                bool correct_homographies) {
     const int64_t T = to_atlas.size(0);
     ParallaxInit res;
     res.parallax = torch::zeros({1, 1, gh, gw});
@@ -146,10 +147,10 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
     if (res.points == 0) return res;
     // Each correspondence's atlas point (frame t's, through its homography) and where it reads γ.
     std::vector<torch::Tensor> at, grid;
+    const auto norm = torch::tensor({2.0f / float(atlas_w), 2.0f / float(atlas_h)});
     {
         torch::NoGradGuard no_grad;
         auto h = to_atlas.to(torch::kFloat32);
-        auto norm = torch::tensor({2.0f / float(atlas_w), 2.0f / float(atlas_h)});
         for (const auto& pr : pairs) {
             at.push_back(apply_h(h[pr.t], pr.p));
             grid.push_back(((at.back() + 0.5) * norm - 1.0).view({1, 1, -1, 2}));
@@ -158,6 +159,20 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
     torch::AutoGradMode grad(true);  // the model is built under a NoGradGuard
     auto g = torch::zeros({1, 1, gh, gw}, torch::requires_grad());
     auto e = epipole.clone().set_requires_grad(true);
+    // Each frame's homography corrected by an affine map in px at the frame's half diagonal R
+    // (b_x, b_y, M): chained pairwise homographies each take their own mix of depths for the
+    // plane and drift over a clip, which one γ shared by every frame cannot take.
+    auto corr = torch::zeros({T, 6}, torch::requires_grad(correct_homographies));
+    auto keep0 = torch::ones({T, 1});
+    keep0[0] = 0;
+    const auto mid = torch::tensor({0.5f * float(atlas_w), 0.5f * float(atlas_h)}).view({1, 2});
+    bool use_corr = false;
+    auto corrected = [&](int64_t t, const torch::Tensor& u) {  // C_t(u), u [n,2]
+        if (!use_corr) return u;
+        auto c = (corr * keep0)[t];
+        auto m = c.narrow(0, 2, 4).view({2, 2});
+        return u + c.narrow(0, 0, 2).view({1, 2}) + torch::matmul(u - mid, m.t()) / float(radius);
+    };
     // γ is a property of the scene with edges where depth jumps (a pillar before a wall): a
     // lighter smoothness than the warps', whose grid is per frame.
     const double smooth = 0.001, size = 1e-4, eps2 = 0.25;
@@ -173,13 +188,15 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
         for (size_t i = 0; i < pairs.size(); ++i) {
             const auto& pr = pairs[i];
             if (parity >= 0 && pr.t % 2 != parity) continue;
-            auto gam = F::grid_sample(g, grid[i], opts).view({-1, 1});  // [n,1]
+            const auto u = corrected(pr.t, at[i]);
+            const auto gr = use_corr ? ((u + 0.5) * norm - 1.0).view({1, 1, -1, 2}) : grid[i];
+            auto gam = F::grid_sample(g, gr, opts).view({-1, 1});  // [n,1]
             auto dir = [&](int64_t t) {
-                return e[t].narrow(0, 0, 2).view({1, 2}) + e[t].narrow(0, 2, 1).view({1, 1}) *
-                                                               (at[i] - centre[t].view({1, 2})) /
-                                                               radius;
+                return e[t].narrow(0, 0, 2).view({1, 2}) +
+                       e[t].narrow(0, 2, 1).view({1, 1}) * (u - centre[t].view({1, 2})) / radius;
             };
-            auto r = pr.d - gam * (dir(pr.t + 1) - dir(pr.t));
+            auto d = use_corr ? u - corrected(pr.t + 1, at[i] - pr.d) : pr.d;
+            auto r = d - gam * (dir(pr.t + 1) - dir(pr.t));
             auto n2 = r.pow(2).sum(1);
             sum = sum + (robust ? (n2 + eps2).sqrt() : n2.sqrt()).sum();
             n += pr.p.size(0);
@@ -188,10 +205,12 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
     };
     torch::optim::Adam opt_g({g}, torch::optim::AdamOptions(0.3));
     torch::optim::Adam opt_e({e}, torch::optim::AdamOptions(0.0));
+    torch::optim::Adam opt_c({corr}, torch::optim::AdamOptions(0.05));
     auto fit = [&](int parity, int steps) {
         for (int i = 0; i < steps; ++i) {
             opt_g.zero_grad();
             opt_e.zero_grad();
+            opt_c.zero_grad();
             auto dx = g.narrow(3, 1, gw - 1) - g.narrow(3, 0, gw - 1);
             auto dy = g.narrow(2, 1, gh - 1) - g.narrow(2, 0, gh - 1);
             auto loss = disagreement(true, parity) +
@@ -199,6 +218,7 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
             loss.backward();
             opt_g.step();
             opt_e.step();
+            if (use_corr) opt_c.step();
         }
     };
     {
@@ -218,11 +238,22 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
     }
     if (min_held_gain > 0 && !(res.held_gain() >= min_held_gain))
         return res;  // refused (or not scored): the caller keeps no field, so fit no further
+    use_corr = correct_homographies;
     fit(-1, iters);
     torch::NoGradGuard done;
     res.after_px = disagreement(false, -1).item<double>();
     res.parallax = g.detach().clone();
     res.epipole = e.detach().clone();
+    if (use_corr) {
+        auto c = (corr * keep0).detach().to(torch::kFloat64);
+        auto m = c.narrow(1, 2, 4).view({T, 2, 2}) / radius;
+        auto mat = torch::eye(3, torch::kFloat64).repeat({T, 1, 1});
+        mat.narrow(1, 0, 2).narrow(2, 0, 2).add_(m);
+        auto midd = mid.to(torch::kFloat64).view({1, 2, 1});
+        mat.narrow(1, 0, 2).narrow(2, 2, 1).copy_(c.narrow(1, 0, 2).view({T, 2, 1}) -
+                                                  torch::matmul(m, midd));
+        res.correction = mat;
+    }
     return res;
 }
 

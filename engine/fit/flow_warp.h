@@ -36,8 +36,11 @@ FlowWarpResult warps_from_flow(const torch::Tensor& to_atlas, double scale,
 struct ParallaxInit {
     torch::Tensor parallax;  // [1,1,gh,gw] γ over the atlas (grid_sample, align_corners false)
     torch::Tensor epipole;   // [T,3] refined
-    double before_px = 0;    // mean disagreement of the flow's correspondences, γ = 0
-    double after_px = 0;     // ... with γ and the epipoles
+    // [T,3,3] each frame's correction of its homography in the atlas (the identity at frame 0;
+    // undefined unless asked for): C_t(u) = u + b_t + M_t·(u − c)/R, c the atlas's centre
+    torch::Tensor correction;
+    double before_px = 0;  // mean disagreement of the flow's correspondences, γ = 0
+    double after_px = 0;   // ... with γ and the epipoles
     // The same on the odd frame pairs (t → t+1, t odd) before and after a field fitted to the even
     // pairs alone: what the field predicts of pairs it was not fitted to. Scene depth is shared by
     // every pair; the flow's own errors are not. NaN with fewer than two pairs of each kind.
@@ -65,6 +68,6 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
                                 const torch::Tensor& epipole, const torch::Tensor& centre,
                                 double radius, int64_t atlas_w, int64_t atlas_h, int64_t gh,
                                 int64_t gw, double min_held_gain = 0, int iters = 150,
-                                int stride = 4);
+                                int stride = 4, bool correct_homographies = false);
 
 }  // namespace refocus
