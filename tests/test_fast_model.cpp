@@ -509,9 +509,9 @@ TEST_CASE("renders outside training keep the composed atlas until an edit change
     CHECK((m.render({0}).sharp - first).abs().max().item<float>() < 1e-5f);
 }
 
-TEST_CASE("an affine alignment corrects a frame's zoom, on a proxy as at full size") {
+TEST_CASE("an affine or projective alignment corrects a frame's zoom, on a proxy as at full size") {
     // The pan of the test above, frame 2's homography off by a 3 % zoom about the frame's
-    // centre (a chained dolly's drift): a shift cannot take it, fast.align_affine does.
+    // centre (a chained dolly's drift): a shift cannot take it, fast.align_motion=affine does.
     namespace F = torch::nn::functional;
     const int64_t T = 4, H = 64, W = 96, M = 16;
     torch::manual_seed(5);
@@ -539,19 +539,22 @@ TEST_CASE("an affine alignment corrects a frame's zoom, on a proxy as at full si
     d->radius = torch::full({T, H, W}, 1.0f);
     d->to_ref = torch::stack(hs);
     d->static_camera = false;
-    auto frame2 = [&](bool affine, int width) {
+    auto frame2 = [&](const char* motion, int width) {
         FastModelOptions o;
-        o.align_affine = affine;
+        o.align_motion = motion;
         o.align_width = width;
         FastModel m(*d, o);
         torch::NoGradGuard g;
         return psnr_of(m.render({2}).sharp, d->input.narrow(0, 2, 1));
     };
-    const double shift = frame2(false, 0), full = frame2(true, 0), proxy = frame2(true, W / 2);
+    const double shift = frame2("shift", 0), full = frame2("affine", 0),
+                 proxy = frame2("affine", W / 2), hom = frame2("homography", W / 2);
     MESSAGE("frame 2 rendered from the fused atlas: a shift "
             << shift << " dB, affine at full "
-            << "size " << full << " dB, on a half-size proxy " << proxy << " dB");
+            << "size " << full << " dB, on a half-size proxy " << proxy
+            << " dB, a homography there " << hom << " dB");
     CHECK(full > shift + 3.0);
     CHECK(proxy > shift + 3.0);
     CHECK(proxy > full - 3.0);  // the proxy reads a coarser texture
+    CHECK(hom > shift + 3.0);
 }

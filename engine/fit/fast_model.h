@@ -68,11 +68,12 @@ struct FastModelOptions {
     double alpha_shared_lr = 1.0;    // the shared matte's learning rate, times lr_alpha
     int align_rounds = 2;            // ECC refinement rounds at initialisation (0: off)
     int align_width = 640;           // ... on frames shrunk to at most this wide (0: full size)
-    bool align_affine = false;       // a moving camera's ECC corrects an affine map, not a shift
-    double align_max_px = 4;         // ... and no corner of a moving camera's frame moves this far
-    bool static_align = true;        // ... also on a camera judged static (hand shake)
-    double atlas_scale = 1;          // atlas px per frame px (FitData::atlas_scale); TV and the
-                                     // residual warps stay in frame px
+    std::string align_motion =
+        "shift";               // what a moving camera's ECC corrects: shift|affine|homography
+    double align_max_px = 4;   // ... and no corner of a moving camera's frame moves this far
+    bool static_align = true;  // ... also on a camera judged static (hand shake)
+    double atlas_scale = 1;    // atlas px per frame px (FitData::atlas_scale); TV and the
+                               // residual warps stay in frame px
     // The deblurring path: a second parameterisation of each atlas, d * Q, where Q's response
     // rises where the layer's typical blur attenuates the scene (make_deblur_path). Adam moves
     // each texel by ~lr whatever its gradient's size, so detail that the blur passed at a few

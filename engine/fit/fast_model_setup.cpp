@@ -91,27 +91,27 @@ torch::Tensor fuse_on_proxy(const torch::Tensor& to_atlas, int64_t Ha, int64_t W
 // something in one frame only, a flash or a passer-by, is not hand shake).
 torch::Tensor ecc_translation(const cv::Mat& tmpl, const cv::Mat& moving, const cv::Mat& mask,
                               int64_t k, int64_t W, int64_t H, double max_shift, bool static_camera,
-                              int round, int64_t t, bool affine) {
-    // Translation by default: more degrees of freedom let ECC wander on heavily blurred frames.
-    cv::Mat warp = cv::Mat::eye(2, 3, CV_32F);
+                              int round, int64_t t, int motion) {
+    // A shift by default: more degrees of freedom let ECC wander on heavily blurred frames.
+    cv::Mat warp = cv::Mat::eye(motion == cv::MOTION_HOMOGRAPHY ? 3 : 2, 3, CV_32F);
     bool ok = true;
     try {
         cv::findTransformECC(
-            tmpl, moving, warp, affine ? cv::MOTION_AFFINE : cv::MOTION_TRANSLATION,
+            tmpl, moving, warp, motion,
             cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 60, 1e-5), mask, 5);
     } catch (const cv::Exception&) {
         ok = false;  // no convergence: keep the mapping
     }
-    // The proxy's map in frame px: x = k·x_p + c with c = (k − 1)/2, so the linear part A stays
-    // and the shift b becomes k·b + (I − A)·c (c cancels for a translation).
-    auto wf = torch::eye(3, torch::kFloat64);
-    const double c0 = (k - 1) / 2.0;
-    for (int r = 0; r < warp.rows; ++r) {
-        for (int c = 0; c < 2; ++c) wf[r][c] = double(warp.at<float>(r, c));
-        wf[r][2] = double(warp.at<float>(r, 2)) * double(k) +
-                   (1.0 - double(warp.at<float>(r, r))) * c0 -
-                   double(warp.at<float>(r, 1 - r)) * c0;
-    }
+    // The proxy's map in frame px: frame x = B·x_p with B = [k 0 c; 0 k c; 0 0 1], c = (k − 1)/2,
+    // so the frame's map is B·W·B⁻¹ (a shift's c cancels: k times its shift).
+    auto wp = torch::eye(3, torch::kFloat64);
+    for (int r = 0; r < warp.rows; ++r)
+        for (int c = 0; c < 3; ++c) wp[r][c] = double(warp.at<float>(r, c));
+    auto B = torch::eye(3, torch::kFloat64);
+    B[0][0] = B[1][1] = double(k);
+    B[0][2] = B[1][2] = (k - 1) / 2.0;
+    auto wf = torch::matmul(torch::matmul(B, wp), torch::inverse(B));
+    wf = wf / wf[2][2];
     double worst = 0;
     for (double cy : {0.0, double(H - 1)})
         for (double cx : {0.0, double(W - 1)}) {
@@ -297,6 +297,9 @@ void FastModel::refine_alignment(Atlas& a, const FrameFn& weight, const FrameFn&
         return cv::Mat(int(l.size(0)), int(l.size(1)), CV_32F, l.data_ptr<float>()).clone();
     };
     const int n_rounds = rounds < 0 ? m_opts.align_rounds : rounds;
+    const int motion = m_opts.align_motion == "homography" ? cv::MOTION_HOMOGRAPHY
+                       : m_opts.align_motion == "affine"   ? cv::MOTION_AFFINE
+                                                           : cv::MOTION_TRANSLATION;
     for (int round = 0; round < n_rounds; ++round) {
         torch::Tensor fused;
         {
@@ -363,7 +366,7 @@ void FastModel::refine_alignment(Atlas& a, const FrameFn& weight, const FrameFn&
             ScopedTiming timing("align: ECC");
             mats.push_back(torch::matmul(
                 m, ecc_translation(tmpl, moving, mask, k, W, H, max_shift, static_camera, round, t,
-                                   m_opts.align_affine && !static_camera)));
+                                   static_camera ? cv::MOTION_TRANSLATION : motion)));
         }
         a.to_atlas = torch::stack(mats).to(torch::kFloat32);
     }
