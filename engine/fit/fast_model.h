@@ -64,12 +64,11 @@ struct FastModelOptions {
     double w_temporal = 0.0;
     double w_bootstrap = 0.5;  // alpha to mask, halves every `bootstrap_halflife` steps
     int bootstrap_halflife = 400;
-    double w_alpha_residual = 0.02;  // L1 on the per-frame alpha residual (logit)
-    double alpha_shared_lr = 1.0;    // the shared matte's learning rate, times lr_alpha
-    int align_rounds = 2;            // ECC refinement rounds at initialisation (0: off)
-    int align_width = 640;           // ... on frames shrunk to at most this wide (0: full size)
-    std::string align_motion =
-        "shift";               // what a moving camera's ECC corrects: shift|affine|homography
+    double w_alpha_residual = 0.02;      // L1 on the per-frame alpha residual (logit)
+    double alpha_shared_lr = 1.0;        // the shared matte's learning rate, times lr_alpha
+    int align_rounds = 2;                // ECC refinement rounds at initialisation (0: off)
+    int align_width = 640;               // ... on frames shrunk to at most this wide (0: full size)
+    std::string align_motion = "shift";  // a moving camera's ECC: shift|affine|homography
     double align_max_px = 4;   // ... and no corner of a moving camera's frame moves this far
     bool static_align = true;  // ... also on a camera judged static (hand shake)
     double atlas_scale = 1;    // atlas px per frame px (FitData::atlas_scale); TV and the

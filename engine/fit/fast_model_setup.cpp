@@ -89,9 +89,9 @@ torch::Tensor fuse_on_proxy(const torch::Tensor& to_atlas, int64_t Ha, int64_t W
 // corner max_shift px or more, or, on a camera judged static (hand shake only), where the frame
 // does not then match clearly better and well (ECC coefficient > 0.9 and +0.002: noise or
 // something in one frame only, a flash or a passer-by, is not hand shake).
-torch::Tensor ecc_translation(const cv::Mat& tmpl, const cv::Mat& moving, const cv::Mat& mask,
-                              int64_t k, int64_t W, int64_t H, double max_shift, bool static_camera,
-                              int round, int64_t t, int motion) {
+torch::Tensor ecc_correction(const cv::Mat& tmpl, const cv::Mat& moving, const cv::Mat& mask,
+                             int64_t k, int64_t W, int64_t H, double max_shift, bool static_camera,
+                             int round, int64_t t, int motion) {
     // A shift by default: more degrees of freedom let ECC wander on heavily blurred frames.
     cv::Mat warp = cv::Mat::eye(motion == cv::MOTION_HOMOGRAPHY ? 3 : 2, 3, CV_32F);
     bool ok = true;
@@ -365,8 +365,8 @@ void FastModel::refine_alignment(Atlas& a, const FrameFn& weight, const FrameFn&
             }
             ScopedTiming timing("align: ECC");
             mats.push_back(torch::matmul(
-                m, ecc_translation(tmpl, moving, mask, k, W, H, max_shift, static_camera, round, t,
-                                   static_camera ? cv::MOTION_TRANSLATION : motion)));
+                m, ecc_correction(tmpl, moving, mask, k, W, H, max_shift, static_camera, round, t,
+                                  static_camera ? cv::MOTION_TRANSLATION : motion)));
         }
         a.to_atlas = torch::stack(mats).to(torch::kFloat32);
     }
