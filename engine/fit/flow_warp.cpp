@@ -165,13 +165,19 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
     auto corr = torch::zeros({T, 6}, torch::requires_grad(correct_homographies));
     auto keep0 = torch::ones({T, 1});
     keep0[0] = 0;
-    const auto mid = torch::tensor({0.5f * float(atlas_w), 0.5f * float(atlas_h)}).view({1, 2});
+    const auto mid = torch::tensor({0.5f * float(atlas_w), 0.5f * float(atlas_h)}).view({2, 1});
+    // C_t(u) = u + b_t + M_t·(u − c)/R as [T,2,3] rows (A_t | s_t): A = I + M/R, s = b − M·c/R.
+    auto correction_maps = [&] {
+        auto c = corr * keep0;
+        auto m = c.narrow(1, 2, 4).view({T, 2, 2}) / radius;
+        auto shift = c.narrow(1, 0, 2).view({T, 2, 1}) - torch::matmul(m, mid);
+        return torch::cat({torch::eye(2).expand({T, 2, 2}) + m, shift}, 2);
+    };
     bool use_corr = false;
+    torch::Tensor maps;  // correction_maps() for the disagreement being summed
     auto corrected = [&](int64_t t, const torch::Tensor& u) {  // C_t(u), u [n,2]
         if (!use_corr) return u;
-        auto c = (corr * keep0)[t];
-        auto m = c.narrow(0, 2, 4).view({2, 2});
-        return u + c.narrow(0, 0, 2).view({1, 2}) + torch::matmul(u - mid, m.t()) / float(radius);
+        return torch::matmul(u, maps[t].narrow(1, 0, 2).t()) + maps[t].narrow(1, 2, 1).t();
     };
     // γ is a property of the scene with edges where depth jumps (a pillar before a wall): a
     // lighter smoothness than the warps', whose grid is per frame.
@@ -185,6 +191,7 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
     auto disagreement = [&](bool robust, int parity) {
         torch::Tensor sum = torch::zeros({});
         int64_t n = 0;
+        if (use_corr) maps = correction_maps();
         for (size_t i = 0; i < pairs.size(); ++i) {
             const auto& pr = pairs[i];
             if (parity >= 0 && pr.t % 2 != parity) continue;
@@ -245,14 +252,10 @@ ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tens
     res.parallax = g.detach().clone();
     res.epipole = e.detach().clone();
     if (use_corr) {
-        auto c = (corr * keep0).detach().to(torch::kFloat64);
-        auto m = c.narrow(1, 2, 4).view({T, 2, 2}) / radius;
-        auto mat = torch::eye(3, torch::kFloat64).repeat({T, 1, 1});
-        mat.narrow(1, 0, 2).narrow(2, 0, 2).add_(m);
-        auto midd = mid.to(torch::kFloat64).view({1, 2, 1});
-        mat.narrow(1, 0, 2).narrow(2, 2, 1).copy_(c.narrow(1, 0, 2).view({T, 2, 1}) -
-                                                  torch::matmul(m, midd));
-        res.correction = mat;
+        auto m = correction_maps().to(torch::kFloat64);
+        res.correction = torch::cat(
+            {m, torch::tensor({0.0, 0.0, 1.0}, torch::kFloat64).view({1, 1, 3}).expand({T, 1, 3})},
+            1);
     }
     return res;
 }

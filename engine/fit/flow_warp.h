@@ -61,7 +61,9 @@ struct ParallaxInit {
 // pairs or more γ is first fitted to the even pairs alone and scored on the odd ones
 // (held_before_px / held_after_px), then fitted on from there to every pair, unless the odd
 // pairs gained less than the share `min_held_gain` (> 0) or could not be scored: then γ stays
-// zero and after_px is not computed (the caller keeps no field).
+// zero and after_px is not computed (the caller keeps no field). With `correct_homographies` the
+// fit to every pair also learns each frame's affine correction of its homography (frame 0 held;
+// ParallaxInit::correction, fast.parallax_homography).
 ParallaxInit parallax_from_flow(const torch::Tensor& to_atlas, const torch::Tensor& flow,
                                 const torch::Tensor& valid,
                                 const std::function<torch::Tensor(int64_t)>& region,
